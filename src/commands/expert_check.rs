@@ -1,0 +1,89 @@
+//! `expert-check`: the scripted expert's staged success over instances of every task.
+use crate::sim::env::{Env, WorldConfig};
+use crate::sim::robot::Robot;
+use crate::sim::rollout::run_expert;
+use crate::sim::stages::Stages;
+use crate::sim::task::{Instance, NUM_TASKS, Task};
+use anyhow::Result;
+
+/// Success counts per task, in task order.
+pub struct ExpertReport {
+    pub robot: Robot,
+    pub per_task: Vec<[usize; 3]>,
+    pub instances_per_task: usize,
+}
+
+impl ExpertReport {
+    /// Fraction of all episodes that reached each stage [reached, picked, placed].
+    pub fn overall(&self) -> [f64; 3] {
+        let n = (self.per_task.len() * self.instances_per_task) as f64;
+        std::array::from_fn(|s| self.per_task.iter().map(|t| t[s]).sum::<usize>() as f64 / n)
+    }
+}
+
+/// Seed of the `i`-th check instance of `task`: a range apart from collection seeds (see data::seeds).
+fn check_seed(seed: u64, task: usize, i: usize) -> u64 {
+    seed.wrapping_mul(1_000_003) ^ ((task as u64) << 32) ^ (i as u64) ^ 0x00c0_ffee_0000_0000
+}
+
+/// Runs the expert on `per_task` instances of each of the 16 tasks, without rendering.
+pub fn expert_check(
+    robot: Robot,
+    per_task: usize,
+    seed: u64,
+    max_actions: usize,
+) -> Result<ExpertReport> {
+    let mut env = Env::new(robot, &WorldConfig::default(), false)?;
+    let mut counts = Vec::with_capacity(NUM_TASKS);
+    for t in 0..NUM_TASKS {
+        let task = Task::from_id(t)?;
+        let mut c = [0usize; 3];
+        for i in 0..per_task {
+            let ep = run_expert(
+                &mut env,
+                &Instance::sample(task, check_seed(seed, t, i)),
+                max_actions,
+                false,
+            )?;
+            let Stages {
+                reached,
+                picked,
+                placed,
+            } = ep.stages;
+            for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
+                c[k] += hit as usize;
+            }
+        }
+        counts.push(c);
+    }
+    Ok(ExpertReport {
+        robot,
+        per_task: counts,
+        instances_per_task: per_task,
+    })
+}
+
+/// Prints the report as a table.
+pub fn print_report(r: &ExpertReport) {
+    let n = r.instances_per_task;
+    println!("expert on {} ({} instances per task)", r.robot, n);
+    println!(
+        "{:>4} {:>8} {:>8} {:>8}",
+        "task", "reached", "picked", "placed"
+    );
+    for (t, c) in r.per_task.iter().enumerate() {
+        println!(
+            "{t:>4} {:>8} {:>8} {:>8}",
+            format!("{}/{n}", c[0]),
+            format!("{}/{n}", c[1]),
+            format!("{}/{n}", c[2])
+        );
+    }
+    let o = r.overall();
+    println!(
+        "all  {:>7.1}% {:>7.1}% {:>7.1}%",
+        o[0] * 100.0,
+        o[1] * 100.0,
+        o[2] * 100.0
+    );
+}

@@ -1,0 +1,3 @@
+//! The command-line tools, one module each.
+pub mod contact_sheet;
+pub mod expert_check;

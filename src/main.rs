@@ -1,0 +1,74 @@
+//! The `oneshot-lab` command line.
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use oneshot_lab::commands::{contact_sheet, expert_check};
+use oneshot_lab::sim::env::WorldConfig;
+use oneshot_lab::sim::robot::Robot;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "oneshot-lab",
+    version,
+    about = "Transformers for One-Shot Visual Imitation, reproduced"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Scripted-expert success per task and stage.
+    ExpertCheck {
+        #[arg(long, value_enum)]
+        robot: Robot,
+        /// Instances of each of the 16 tasks.
+        #[arg(long, default_value_t = 10)]
+        per_task: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Action budget per episode.
+        #[arg(long, default_value_t = 100)]
+        max_actions: usize,
+    },
+    /// A PNG of first frames of several instances for both robots.
+    ContactSheet {
+        #[arg(long, default_value = "contact_sheet.png")]
+        out: PathBuf,
+        #[arg(long, default_value_t = 4)]
+        instances: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+}
+
+fn main() {
+    if let Err(e) = run(Cli::parse()) {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::ExpertCheck {
+            robot,
+            per_task,
+            seed,
+            max_actions,
+        } => {
+            let report = expert_check::expert_check(robot, per_task, seed, max_actions)?;
+            expert_check::print_report(&report);
+        }
+        Command::ContactSheet {
+            out,
+            instances,
+            seed,
+        } => {
+            contact_sheet::contact_sheet(&out, instances, seed, &WorldConfig::default())?;
+            println!("wrote {}", out.display());
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,334 @@
+//! One robot in the bins scene: reset to a task instance, step with end-effector actions (IK + PD with
+//! gravity compensation), observe, render and track staged success.
+use super::action::Action;
+use super::camera::{Camera, ImageSize, project};
+use super::ids::SceneIds;
+use super::ik::IkSolver;
+use super::robot::Robot;
+use super::rotation::{from_angle_axis, mat_from_mj, to_angle_axis};
+use super::scene::{Visuals, build_model};
+use super::stages::{StageInputs, Stages};
+use super::task::{Instance, NUM_OBJECTS, in_quadrant};
+use anyhow::{Result, bail};
+use mujoco_rs::prelude::*;
+use nalgebra::{DMatrix, Vector3};
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// World settings shared by collection and evaluation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WorldConfig {
+    /// Frame size handed to the policy.
+    pub image: ImageSize,
+    /// Visual meshes or collision geometry only.
+    pub visuals: Visuals,
+    /// Policy rate (Hz).
+    pub policy_hz: f64,
+    /// Controller updates per action.
+    pub control_substeps: usize,
+    /// Physics time step (s).
+    pub physics_dt: f64,
+    /// Joint PD natural frequency (rad/s) of the computed-torque loop.
+    pub pd_omega: f64,
+}
+
+impl Default for WorldConfig {
+    fn default() -> Self {
+        WorldConfig {
+            image: ImageSize::default(),
+            visuals: Visuals::Full,
+            policy_hz: 10.0,
+            control_substeps: 10,
+            physics_dt: 0.002,
+            pd_omega: 30.0,
+        }
+    }
+}
+
+impl WorldConfig {
+    /// Physics steps per controller update.
+    pub fn physics_per_substep(&self) -> usize {
+        (1.0 / (self.policy_hz * self.control_substeps as f64 * self.physics_dt))
+            .round()
+            .max(1.0) as usize
+    }
+
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        self.image.validate()?;
+        if !(self.policy_hz > 0.0 && self.policy_hz <= 100.0) {
+            bail!("world.policy_hz = {} out of range (0, 100]", self.policy_hz);
+        }
+        if self.control_substeps == 0 || self.control_substeps > 100 {
+            bail!(
+                "world.control_substeps = {} out of range 1..=100",
+                self.control_substeps
+            );
+        }
+        if !(self.physics_dt > 0.0 && self.physics_dt <= 0.01) {
+            bail!(
+                "world.physics_dt = {} out of range (0, 0.01]",
+                self.physics_dt
+            );
+        }
+        if !(self.pd_omega > 0.0 && self.pd_omega <= 200.0) {
+            bail!("world.pd_omega = {} out of range (0, 200]", self.pd_omega);
+        }
+        Ok(())
+    }
+}
+
+/// What the robot senses at one step (privileged object state included).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Observation {
+    pub eef_pos: [f64; 3],
+    /// End-effector orientation as (angle / pi, axis x, y, z), the action's form.
+    pub eef_rot: [f64; 4],
+    /// End-effector pixel (column, row) in the frame.
+    pub eef_pixel: [f64; 2],
+    pub joint_pos: [f64; 7],
+    pub joint_vel: [f64; 7],
+    pub gripper_qpos: [f64; 2],
+    /// Pose (x, y, z, qw, qx, qy, qz) of each object, in `Object::ALL` order.
+    pub object_poses: [[f64; 7]; NUM_OBJECTS],
+    pub stages: Stages,
+}
+
+/// A simulated robot in the bins scene.
+pub struct Env {
+    robot: Robot,
+    config: WorldConfig,
+    data: MjData<Arc<MjModel>>,
+    ids: SceneIds,
+    ik: IkSolver,
+    camera: Option<Camera>,
+    instance: Option<Instance>,
+    start_z: f64,
+    stages: Stages,
+    q_target: [f64; 7],
+    gripper: f64,
+}
+
+impl Env {
+    /// Builds the scene for `robot`; `render` opens a headless camera.
+    pub fn new(robot: Robot, config: &WorldConfig, render: bool) -> Result<Env> {
+        config.validate()?;
+        let mut model = build_model(robot, config.image.width.max(64))?;
+        model.opt_mut().timestep = config.physics_dt;
+        let model = Arc::new(model);
+        let ids = SceneIds::resolve(&model, robot)?;
+        let camera = if render {
+            Some(Camera::new(
+                &model,
+                ids.camera,
+                config.image,
+                config.visuals,
+            )?)
+        } else {
+            None
+        };
+        let ik = IkSolver::new(model.clone(), ids.clone(), robot.spec().init_qpos);
+        Ok(Env {
+            robot,
+            config: config.clone(),
+            data: MjData::new(model),
+            ids,
+            ik,
+            camera,
+            instance: None,
+            start_z: 0.0,
+            stages: Stages::default(),
+            q_target: robot.spec().init_qpos,
+            gripper: -1.0,
+        })
+    }
+
+    /// The robot in this scene.
+    pub fn robot(&self) -> Robot {
+        self.robot
+    }
+
+    /// The task instance of the current episode.
+    pub fn instance(&self) -> Option<&Instance> {
+        self.instance.as_ref()
+    }
+
+    /// Stages achieved so far in this episode.
+    pub fn stages(&self) -> Stages {
+        self.stages
+    }
+
+    /// Starts an episode: robot at its initial pose with the gripper open, objects laid out, settled.
+    pub fn reset(&mut self, instance: &Instance) {
+        self.data.reset();
+        let spec = self.robot.spec();
+        {
+            let qpos = self.data.qpos_mut();
+            for (i, &a) in self.ids.arm_qpos.iter().enumerate() {
+                qpos[a] = spec.init_qpos[i];
+            }
+            for (i, &a) in self.ids.finger_qpos.iter().enumerate() {
+                qpos[a] = spec.open_ctrl[i];
+            }
+            for (k, pose) in instance.objects.iter().enumerate() {
+                let a = self.ids.object_qpos[k];
+                let (s, c) = (pose.yaw / 2.0).sin_cos();
+                qpos[a..a + 7].copy_from_slice(&[
+                    pose.pos[0],
+                    pose.pos[1],
+                    pose.pos[2],
+                    c,
+                    0.0,
+                    0.0,
+                    s,
+                ]);
+            }
+        }
+        self.q_target = spec.init_qpos;
+        self.gripper = -1.0;
+        self.data.forward();
+        // Let the objects settle under gravity while the arm holds its pose.
+        for _ in 0..3 {
+            self.run_controller();
+        }
+        self.instance = Some(instance.clone());
+        self.start_z = self.object_pos(instance.task.object)[2];
+        self.stages = Stages::default();
+        self.update_stages();
+    }
+
+    /// Applies one action for 1 / policy_hz seconds.
+    pub fn step(&mut self, action: &Action) {
+        let a = action.clipped();
+        let rot = from_angle_axis(a.0[3], [a.0[4], a.0[5], a.0[6]]);
+        let q_now = self.arm_q();
+        let sol = self.ik.solve(&q_now, &Vector3::from(a.pos()), &rot);
+        self.q_target = sol.q;
+        self.gripper = a.gripper();
+        self.run_controller();
+        self.update_stages();
+    }
+
+    /// Current observation.
+    pub fn observe(&self) -> Observation {
+        let site = self.ids.ee_site;
+        let eef_pos = self.data.site_xpos()[site];
+        let (angle, axis) = to_angle_axis(&mat_from_mj(&self.data.site_xmat()[site]));
+        let qvel = self.data.qvel();
+        let qpos = self.data.qpos();
+        Observation {
+            eef_pos,
+            eef_rot: [angle, axis[0], axis[1], axis[2]],
+            eef_pixel: project(&self.data, self.ids.camera, self.config.image, eef_pos),
+            joint_pos: self.arm_q(),
+            joint_vel: self.ids.arm_dof.map(|d| qvel[d]),
+            gripper_qpos: self.ids.finger_qpos.map(|a| qpos[a]),
+            object_poses: std::array::from_fn(|k| {
+                let a = self.ids.object_qpos[k];
+                qpos[a..a + 7]
+                    .try_into()
+                    .expect("free joint has 7 coordinates")
+            }),
+            stages: self.stages,
+        }
+    }
+
+    /// Renders the camera frame (`height * width * 3` RGB bytes); errors if the env was built without one.
+    pub fn render(&mut self) -> Result<Vec<u8>> {
+        match self.camera.as_mut() {
+            Some(cam) => cam.render(&mut self.data),
+            None => bail!("this environment was built without a camera"),
+        }
+    }
+
+    /// End-effector position and rotation matrix.
+    pub fn eef_pose(&self) -> (Vector3<f64>, nalgebra::Matrix3<f64>) {
+        let site = self.ids.ee_site;
+        (
+            Vector3::from(self.data.site_xpos()[site]),
+            mat_from_mj(&self.data.site_xmat()[site]),
+        )
+    }
+
+    /// Position of object `k`.
+    pub fn object_pos(&self, k: usize) -> [f64; 3] {
+        self.data.xpos()[self.ids.object_body[k]]
+    }
+
+    /// Yaw of object `k` about the vertical.
+    pub fn object_yaw(&self, k: usize) -> f64 {
+        let m = self.data.xmat()[self.ids.object_body[k]];
+        m[3].atan2(m[0])
+    }
+
+    /// Arm joint angles.
+    pub fn arm_q(&self) -> [f64; 7] {
+        let qpos = self.data.qpos();
+        self.ids.arm_qpos.map(|a| qpos[a])
+    }
+
+    /// The IK solver of this scene (for tests and tools).
+    pub fn ik(&mut self) -> &mut IkSolver {
+        &mut self.ik
+    }
+
+    /// Physics steps per action.
+    pub fn physics_steps_per_action(&self) -> usize {
+        self.config.control_substeps * self.config.physics_per_substep()
+    }
+
+    /// Runs the joint PD loop with gravity compensation for one action period.
+    fn run_controller(&mut self) {
+        let spec = self.robot.spec();
+        let g = (self.gripper.clamp(-1.0, 1.0) + 1.0) / 2.0;
+        let finger: [f64; 2] = std::array::from_fn(|i| {
+            spec.open_ctrl[i] + g * (spec.closed_ctrl[i] - spec.open_ctrl[i])
+        });
+        let kp = self.config.pd_omega.powi(2);
+        let kd = 2.0 * self.config.pd_omega;
+        let nv = self.data.model().ffi().nv as usize;
+        let mut full_m = vec![0.0; nv * nv];
+        for _ in 0..self.config.control_substeps {
+            let q = self.arm_q();
+            let qvel = self.data.qvel();
+            let acc: [f64; 7] = std::array::from_fn(|i| {
+                kp * (self.q_target[i] - q[i]) - kd * qvel[self.ids.arm_dof[i]]
+            });
+            self.data
+                .full_m(&mut full_m)
+                .expect("inertia buffer has nv*nv entries");
+            let m = DMatrix::from_row_slice(nv, nv, &full_m);
+            let bias = self.data.qfrc_bias();
+            let torque: [f64; 7] = std::array::from_fn(|i| {
+                let r = self.ids.arm_dof[i];
+                let inertial: f64 = (0..7).map(|j| m[(r, self.ids.arm_dof[j])] * acc[j]).sum();
+                inertial + bias[r]
+            });
+            let ctrl = self.data.ctrl_mut();
+            for i in 0..7 {
+                ctrl[self.ids.arm_actuator[i]] = torque[i];
+            }
+            for i in 0..2 {
+                ctrl[self.ids.finger_actuator[i]] = finger[i];
+            }
+            for _ in 0..self.config.physics_per_substep() {
+                self.data.step();
+            }
+        }
+    }
+
+    fn update_stages(&mut self) {
+        let Some(inst) = &self.instance else { return };
+        let task = inst.task;
+        let p = Vector3::from(self.object_pos(task.object));
+        let (ee, r) = self.eef_pose();
+        let local = r.transpose() * (p - ee);
+        self.stages.update(&StageInputs {
+            object_in_gripper: [local[0], local[1], local[2]],
+            object_z: p[2],
+            start_z: self.start_z,
+            in_target: in_quadrant(task.target, [p[0], p[1]]),
+        });
+    }
+}

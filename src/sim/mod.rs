@@ -1,0 +1,14 @@
+//! The simulated world: scene composition, robots, tasks, control, the scripted expert and rendering.
+pub mod action;
+pub mod assets;
+pub mod camera;
+pub mod env;
+pub mod expert;
+pub mod ids;
+pub mod ik;
+pub mod robot;
+pub mod rollout;
+pub mod rotation;
+pub mod scene;
+pub mod stages;
+pub mod task;

@@ -1,0 +1,90 @@
+//! Rotation helpers: MuJoCo's row-major matrices and the action's axis-angle form.
+use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+
+/// Rotation from MuJoCo's row-major 3x3 array.
+pub fn mat_from_mj(m: &[f64; 9]) -> Matrix3<f64> {
+    Matrix3::from_row_slice(m)
+}
+
+/// The action's orientation form: (angle / pi, unit axis), with the axis sign fixed so that rotations by
+/// about pi (where axis and -axis mean the same) have one representation.
+pub fn to_angle_axis(r: &Matrix3<f64>) -> (f64, [f64; 3]) {
+    let rot = Rotation3::from_matrix_unchecked(*r);
+    match rot.axis_angle() {
+        None => (0.0, [0.0, 0.0, 1.0]),
+        Some((axis, angle)) => {
+            let mut a = axis.into_inner();
+            let mut angle = angle;
+            // Near a half turn, axis and -axis are the same rotation: keep the one with y (else x, z) >= 0.
+            if (std::f64::consts::PI - angle).abs() < 1e-6 {
+                let key = if a[1].abs() > 1e-9 {
+                    a[1]
+                } else if a[0].abs() > 1e-9 {
+                    a[0]
+                } else {
+                    a[2]
+                };
+                if key < 0.0 {
+                    a = -a;
+                }
+            }
+            if angle < 0.0 {
+                angle = -angle;
+                a = -a;
+            }
+            (angle / std::f64::consts::PI, [a[0], a[1], a[2]])
+        }
+    }
+}
+
+/// Rotation from the action's (angle / pi, axis) form; a zero axis means no rotation.
+pub fn from_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> Matrix3<f64> {
+    let v = Vector3::from(axis);
+    if v.norm() < 1e-9 {
+        return Matrix3::identity();
+    }
+    Rotation3::from_axis_angle(
+        &Unit::new_normalize(v),
+        angle_over_pi * std::f64::consts::PI,
+    )
+    .into_inner()
+}
+
+/// Rotation vector (axis * angle) taking `from` to `to`, expressed in the world frame.
+pub fn rotation_error(to: &Matrix3<f64>, from: &Matrix3<f64>) -> Vector3<f64> {
+    Rotation3::from_matrix_unchecked(to * from.transpose()).scaled_axis()
+}
+
+/// Gripper pointing straight down, rotated by `yaw` about the vertical.
+pub fn downward(yaw: f64) -> Matrix3<f64> {
+    (Rotation3::from_axis_angle(&Vector3::z_axis(), yaw)
+        * Rotation3::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI))
+    .into_inner()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn angle_axis_round_trips() {
+        for yaw in [-1.2, -0.3, 0.0, 0.4, 1.5] {
+            let r = downward(yaw);
+            let (a, axis) = to_angle_axis(&r);
+            assert!((a - 1.0).abs() < 1e-9, "downward is a half turn, got {a}");
+            let back = from_angle_axis(a, axis);
+            assert!((back - r).norm() < 1e-9);
+        }
+        let r = Rotation3::from_euler_angles(0.3, -0.2, 0.9).into_inner();
+        let (a, axis) = to_angle_axis(&r);
+        assert!((from_angle_axis(a, axis) - r).norm() < 1e-9);
+    }
+
+    #[test]
+    fn rotation_error_is_zero_at_target() {
+        let r = downward(0.7);
+        assert!(rotation_error(&r, &r).norm() < 1e-12);
+        let e = rotation_error(&downward(0.2), &downward(0.0));
+        assert!((e - Vector3::new(0.0, 0.0, 0.2)).norm() < 1e-9);
+    }
+}

@@ -1,0 +1,87 @@
+//! Staged success (design.md): reached, picked, placed. Each stage latches once achieved.
+use serde::{Deserialize, Serialize};
+
+/// Lateral distance (m) in the gripper frame under which the object counts as reached.
+pub const REACH_RADIUS: f64 = 0.03;
+/// Distance (m) along the gripper's approach axis within which the object must also be.
+pub const REACH_DEPTH: f64 = 0.05;
+/// Lift (m) above the starting height that counts as picked.
+pub const LIFT_HEIGHT: f64 = 0.05;
+/// Height band (m) of an object resting in the target bin.
+pub const PLACED_Z: (f64, f64) = (0.80, 0.90);
+
+/// Which stages an episode has achieved so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Stages {
+    pub reached: bool,
+    pub picked: bool,
+    pub placed: bool,
+}
+
+/// The facts one step's stage update needs.
+pub struct StageInputs {
+    /// Object position in the gripper's frame (x across the fingers, z along them).
+    pub object_in_gripper: [f64; 3],
+    /// Object height now and at the episode's start.
+    pub object_z: f64,
+    pub start_z: f64,
+    /// Whether the object's (x, y) lies in the task's target quadrant.
+    pub in_target: bool,
+}
+
+impl Stages {
+    /// Latches every stage that `s` shows achieved.
+    pub fn update(&mut self, s: &StageInputs) {
+        let [x, y, z] = s.object_in_gripper;
+        if x.hypot(y) < REACH_RADIUS && z.abs() < REACH_DEPTH {
+            self.reached = true;
+        }
+        if self.reached && s.object_z > s.start_z + LIFT_HEIGHT {
+            self.picked = true;
+        }
+        if s.in_target && s.object_z > PLACED_Z.0 && s.object_z < PLACED_Z.1 {
+            self.placed = true;
+        }
+    }
+
+    /// The stages as 0/1 bytes [reached, picked, placed].
+    pub fn as_bytes(&self) -> [u8; 3] {
+        [self.reached as u8, self.picked as u8, self.placed as u8]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn inputs(g: [f64; 3], z: f64, in_target: bool) -> StageInputs {
+        StageInputs {
+            object_in_gripper: g,
+            object_z: z,
+            start_z: 0.85,
+            in_target,
+        }
+    }
+
+    #[test]
+    fn stages_follow_the_definitions_and_latch() {
+        let mut s = Stages::default();
+        s.update(&inputs([0.0, 0.0, 0.2], 0.85, false));
+        assert_eq!(s, Stages::default(), "hovering 0.2 above is not reached");
+        s.update(&inputs([0.01, 0.02, 0.0], 0.85, false));
+        assert!(s.reached && !s.picked);
+        s.update(&inputs([0.5, 0.5, 0.5], 0.95, false));
+        assert!(s.picked, "lifted after reaching");
+        s.update(&inputs([0.0, 0.0, 0.0], 1.05, true));
+        assert!(!s.placed, "carried high above the quadrant is not placed");
+        s.update(&inputs([0.0, 0.0, 0.3], 0.86, true));
+        assert_eq!(s.as_bytes(), [1, 1, 1]);
+    }
+
+    #[test]
+    fn lifting_without_reaching_is_not_picking() {
+        let mut s = Stages::default();
+        s.update(&inputs([0.2, 0.0, 0.0], 1.0, false));
+        assert!(!s.picked);
+    }
+}
