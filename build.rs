@@ -8,11 +8,7 @@ fn main() {
             continue;
         };
         let dir = Path::new(&dir);
-        let lib = if var == "LIBTORCH" {
-            dir.join("lib")
-        } else {
-            dir.to_path_buf()
-        };
+        let lib = if var == "LIBTORCH" { dir.join("lib") } else { dir.to_path_buf() };
         let lib = lib.canonicalize().unwrap_or(lib);
         println!("cargo:rustc-link-arg=-Wl,-rpath,{}", lib.display());
     }

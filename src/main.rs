@@ -2,16 +2,14 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use oneshot_lab::commands::{contact_sheet, expert_check};
+use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
+use oneshot_lab::sim::scene::Visuals;
 use std::path::PathBuf;
 
 #[derive(Parser)]
-#[command(
-    name = "oneshot-lab",
-    version,
-    about = "Transformers for One-Shot Visual Imitation, reproduced"
-)]
+#[command(name = "oneshot-lab", version, about = "Transformers for One-Shot Visual Imitation, reproduced")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -40,6 +38,14 @@ enum Command {
         instances: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Frame height and width.
+        #[arg(long, default_value_t = 240)]
+        height: usize,
+        #[arg(long, default_value_t = 320)]
+        width: usize,
+        /// Visual meshes, or collision geometry only.
+        #[arg(long, value_enum, default_value = "full")]
+        visuals: Visuals,
     },
 }
 
@@ -52,21 +58,13 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::ExpertCheck {
-            robot,
-            per_task,
-            seed,
-            max_actions,
-        } => {
+        Command::ExpertCheck { robot, per_task, seed, max_actions } => {
             let report = expert_check::expert_check(robot, per_task, seed, max_actions)?;
             expert_check::print_report(&report);
         }
-        Command::ContactSheet {
-            out,
-            instances,
-            seed,
-        } => {
-            contact_sheet::contact_sheet(&out, instances, seed, &WorldConfig::default())?;
+        Command::ContactSheet { out, instances, seed, height, width, visuals } => {
+            let world = WorldConfig { image: ImageSize { height, width }, visuals, ..WorldConfig::default() };
+            contact_sheet::contact_sheet(&out, instances, seed, &world)?;
             println!("wrote {}", out.display());
         }
     }

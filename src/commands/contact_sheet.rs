@@ -19,8 +19,6 @@ pub fn contact_sheet(out: &Path, instances: usize, seed: u64, world: &WorldConfi
             image::imageops::overlay(&mut sheet, &img, (col * w) as i64, (row * h) as i64);
         }
     }
-    sheet
-        .save(out)
-        .with_context(|| format!("writing {}", out.display()))?;
+    sheet.save(out).with_context(|| format!("writing {}", out.display()))?;
     Ok(())
 }

@@ -27,63 +27,32 @@ fn check_seed(seed: u64, task: usize, i: usize) -> u64 {
 }
 
 /// Runs the expert on `per_task` instances of each of the 16 tasks, without rendering.
-pub fn expert_check(
-    robot: Robot,
-    per_task: usize,
-    seed: u64,
-    max_actions: usize,
-) -> Result<ExpertReport> {
+pub fn expert_check(robot: Robot, per_task: usize, seed: u64, max_actions: usize) -> Result<ExpertReport> {
     let mut env = Env::new(robot, &WorldConfig::default(), false)?;
     let mut counts = Vec::with_capacity(NUM_TASKS);
     for t in 0..NUM_TASKS {
         let task = Task::from_id(t)?;
         let mut c = [0usize; 3];
         for i in 0..per_task {
-            let ep = run_expert(
-                &mut env,
-                &Instance::sample(task, check_seed(seed, t, i)),
-                max_actions,
-                false,
-            )?;
-            let Stages {
-                reached,
-                picked,
-                placed,
-            } = ep.stages;
+            let ep = run_expert(&mut env, &Instance::sample(task, check_seed(seed, t, i)), max_actions, false)?;
+            let Stages { reached, picked, placed } = ep.stages;
             for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
                 c[k] += hit as usize;
             }
         }
         counts.push(c);
     }
-    Ok(ExpertReport {
-        robot,
-        per_task: counts,
-        instances_per_task: per_task,
-    })
+    Ok(ExpertReport { robot, per_task: counts, instances_per_task: per_task })
 }
 
 /// Prints the report as a table.
 pub fn print_report(r: &ExpertReport) {
     let n = r.instances_per_task;
     println!("expert on {} ({} instances per task)", r.robot, n);
-    println!(
-        "{:>4} {:>8} {:>8} {:>8}",
-        "task", "reached", "picked", "placed"
-    );
+    println!("{:>4} {:>8} {:>8} {:>8}", "task", "reached", "picked", "placed");
     for (t, c) in r.per_task.iter().enumerate() {
-        println!(
-            "{t:>4} {:>8} {:>8} {:>8}",
-            format!("{}/{n}", c[0]),
-            format!("{}/{n}", c[1]),
-            format!("{}/{n}", c[2])
-        );
+        println!("{t:>4} {:>8} {:>8} {:>8}", format!("{}/{n}", c[0]), format!("{}/{n}", c[1]), format!("{}/{n}", c[2]));
     }
     let o = r.overall();
-    println!(
-        "all  {:>7.1}% {:>7.1}% {:>7.1}%",
-        o[0] * 100.0,
-        o[1] * 100.0,
-        o[2] * 100.0
-    );
+    println!("all  {:>7.1}% {:>7.1}% {:>7.1}%", o[0] * 100.0, o[1] * 100.0, o[2] * 100.0);
 }

@@ -6,16 +6,8 @@ use serde::{Deserialize, Serialize};
 pub const ACTION_DIM: usize = 8;
 
 /// Absolute lower and upper bound of each action dimension.
-pub const ACTION_RANGES: [[f64; 2]; ACTION_DIM] = [
-    [0.44, 0.74],
-    [-0.33, 0.5],
-    [0.82, 1.11],
-    [0.85, 1.08],
-    [-1.0, 1.0],
-    [-1.0, 1.0],
-    [-1.0, 1.0],
-    [-1.0, 1.0],
-];
+pub const ACTION_RANGES: [[f64; 2]; ACTION_DIM] =
+    [[0.44, 0.74], [-0.33, 0.5], [0.82, 1.11], [0.85, 1.08], [-1.0, 1.0], [-1.0, 1.0], [-1.0, 1.0], [-1.0, 1.0]];
 
 /// An end-effector target in absolute units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -24,16 +16,7 @@ pub struct Action(pub [f64; ACTION_DIM]);
 impl Action {
     /// Builds an action from position, (angle/pi, axis) orientation and gripper command (+1 closes).
     pub fn new(pos: [f64; 3], angle_over_pi: f64, axis: [f64; 3], gripper: f64) -> Action {
-        Action([
-            pos[0],
-            pos[1],
-            pos[2],
-            angle_over_pi,
-            axis[0],
-            axis[1],
-            axis[2],
-            gripper,
-        ])
+        Action([pos[0], pos[1], pos[2], angle_over_pi, axis[0], axis[1], axis[2], gripper])
     }
 
     /// The action clipped into its absolute ranges.

@@ -17,10 +17,7 @@ pub struct ImageSize {
 
 impl Default for ImageSize {
     fn default() -> Self {
-        ImageSize {
-            height: 240,
-            width: 320,
-        }
+        ImageSize { height: 240, width: 320 }
     }
 }
 
@@ -28,11 +25,7 @@ impl ImageSize {
     /// Checks that the size can be rendered.
     pub fn validate(&self) -> Result<()> {
         if self.width < 16 || self.height < 16 || self.width > 2048 {
-            bail!(
-                "image size {}x{} out of range: each side must be in 16..=2048",
-                self.height,
-                self.width
-            );
+            bail!("image size {}x{} out of range: each side must be in 16..=2048", self.height, self.width);
         }
         if self.height > self.width {
             bail!(
@@ -59,18 +52,17 @@ pub struct Camera {
 
 impl Camera {
     /// Opens an EGL context and renderer for `model`.
-    pub fn new(
-        model: &MjModel,
-        camera_id: usize,
-        size: ImageSize,
-        visuals: Visuals,
-    ) -> Result<Camera> {
+    pub fn new(model: &MjModel, camera_id: usize, size: ImageSize, visuals: Visuals) -> Result<Camera> {
         size.validate()?;
-        let mut opts = MjvOption::default();
-        // Group 0: robot collision shapes; 1: robot and arena visual meshes; 2: objects (both modes).
-        opts.geomgroup = match visuals {
-            Visuals::Full => [0, 1, 1, 0, 0, 0],
-            Visuals::Collision => [1, 0, 1, 0, 0, 0],
+        // Geom group 0: robot collision shapes; 1: robot and arena visual meshes; 2: objects (both modes).
+        // Sites (markers) are hidden.
+        let opts = MjvOption {
+            sitegroup: [0; 6],
+            geomgroup: match visuals {
+                Visuals::Full => [0, 1, 1, 0, 0, 0],
+                Visuals::Collision => [1, 0, 1, 0, 0, 0],
+            },
+            ..MjvOption::default()
         };
         let renderer = MjRenderer::builder()
             .width(size.width as u32)
@@ -79,23 +71,14 @@ impl Camera {
             .opts(opts)
             .build(model)
             .map_err(|e| anyhow!("opening a headless EGL renderer: {e}"))?;
-        Ok(Camera {
-            renderer,
-            size,
-            camera_id,
-        })
+        Ok(Camera { renderer, size, camera_id })
     }
 
     /// Renders the current state: `height * width * 3` bytes, row-major from the top row.
     pub fn render(&mut self, data: &mut MjData<Arc<MjModel>>) -> Result<Vec<u8>> {
-        self.renderer
-            .sync_data(data)
-            .map_err(|e| anyhow!("render sync: {e}"))?;
+        self.renderer.sync_data(data).map_err(|e| anyhow!("render sync: {e}"))?;
         self.renderer.render().map_err(|e| anyhow!("render: {e}"))?;
-        let rgb = self
-            .renderer
-            .rgb_flat()
-            .ok_or_else(|| anyhow!("renderer produced no RGB buffer"))?;
+        let rgb = self.renderer.rgb_flat().ok_or_else(|| anyhow!("renderer produced no RGB buffer"))?;
         let skip = (self.size.width - self.size.height) * self.size.width * 3;
         Ok(rgb[skip..].to_vec())
     }

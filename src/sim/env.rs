@@ -49,9 +49,7 @@ impl Default for WorldConfig {
 impl WorldConfig {
     /// Physics steps per controller update.
     pub fn physics_per_substep(&self) -> usize {
-        (1.0 / (self.policy_hz * self.control_substeps as f64 * self.physics_dt))
-            .round()
-            .max(1.0) as usize
+        (1.0 / (self.policy_hz * self.control_substeps as f64 * self.physics_dt)).round().max(1.0) as usize
     }
 
     /// Checks ranges; errors name the key.
@@ -61,16 +59,10 @@ impl WorldConfig {
             bail!("world.policy_hz = {} out of range (0, 100]", self.policy_hz);
         }
         if self.control_substeps == 0 || self.control_substeps > 100 {
-            bail!(
-                "world.control_substeps = {} out of range 1..=100",
-                self.control_substeps
-            );
+            bail!("world.control_substeps = {} out of range 1..=100", self.control_substeps);
         }
         if !(self.physics_dt > 0.0 && self.physics_dt <= 0.01) {
-            bail!(
-                "world.physics_dt = {} out of range (0, 0.01]",
-                self.physics_dt
-            );
+            bail!("world.physics_dt = {} out of range (0, 0.01]", self.physics_dt);
         }
         if !(self.pd_omega > 0.0 && self.pd_omega <= 200.0) {
             bail!("world.pd_omega = {} out of range (0, 200]", self.pd_omega);
@@ -118,16 +110,7 @@ impl Env {
         model.opt_mut().timestep = config.physics_dt;
         let model = Arc::new(model);
         let ids = SceneIds::resolve(&model, robot)?;
-        let camera = if render {
-            Some(Camera::new(
-                &model,
-                ids.camera,
-                config.image,
-                config.visuals,
-            )?)
-        } else {
-            None
-        };
+        let camera = if render { Some(Camera::new(&model, ids.camera, config.image, config.visuals)?) } else { None };
         let ik = IkSolver::new(model.clone(), ids.clone(), robot.spec().init_qpos);
         Ok(Env {
             robot,
@@ -174,15 +157,7 @@ impl Env {
             for (k, pose) in instance.objects.iter().enumerate() {
                 let a = self.ids.object_qpos[k];
                 let (s, c) = (pose.yaw / 2.0).sin_cos();
-                qpos[a..a + 7].copy_from_slice(&[
-                    pose.pos[0],
-                    pose.pos[1],
-                    pose.pos[2],
-                    c,
-                    0.0,
-                    0.0,
-                    s,
-                ]);
+                qpos[a..a + 7].copy_from_slice(&[pose.pos[0], pose.pos[1], pose.pos[2], c, 0.0, 0.0, s]);
             }
         }
         self.q_target = spec.init_qpos;
@@ -203,7 +178,15 @@ impl Env {
         let a = action.clipped();
         let rot = from_angle_axis(a.0[3], [a.0[4], a.0[5], a.0[6]]);
         let q_now = self.arm_q();
-        let sol = self.ik.solve(&q_now, &Vector3::from(a.pos()), &rot);
+        let target = Vector3::from(a.pos());
+        let mut sol = self.ik.solve(&q_now, &target, &rot);
+        if sol.pos_err > 0.005 || sol.rot_err > 0.05 {
+            // Stuck in a local minimum (often at a joint limit): try again from the rest posture.
+            let fresh = self.ik.solve(&self.robot.spec().init_qpos, &target, &rot);
+            if fresh.pos_err + 0.1 * fresh.rot_err < sol.pos_err + 0.1 * sol.rot_err {
+                sol = fresh;
+            }
+        }
         self.q_target = sol.q;
         self.gripper = a.gripper();
         self.run_controller();
@@ -226,9 +209,7 @@ impl Env {
             gripper_qpos: self.ids.finger_qpos.map(|a| qpos[a]),
             object_poses: std::array::from_fn(|k| {
                 let a = self.ids.object_qpos[k];
-                qpos[a..a + 7]
-                    .try_into()
-                    .expect("free joint has 7 coordinates")
+                qpos[a..a + 7].try_into().expect("free joint has 7 coordinates")
             }),
             stages: self.stages,
         }
@@ -245,10 +226,7 @@ impl Env {
     /// End-effector position and rotation matrix.
     pub fn eef_pose(&self) -> (Vector3<f64>, nalgebra::Matrix3<f64>) {
         let site = self.ids.ee_site;
-        (
-            Vector3::from(self.data.site_xpos()[site]),
-            mat_from_mj(&self.data.site_xmat()[site]),
-        )
+        (Vector3::from(self.data.site_xpos()[site]), mat_from_mj(&self.data.site_xmat()[site]))
     }
 
     /// Position of object `k`.
@@ -282,9 +260,8 @@ impl Env {
     fn run_controller(&mut self) {
         let spec = self.robot.spec();
         let g = (self.gripper.clamp(-1.0, 1.0) + 1.0) / 2.0;
-        let finger: [f64; 2] = std::array::from_fn(|i| {
-            spec.open_ctrl[i] + g * (spec.closed_ctrl[i] - spec.open_ctrl[i])
-        });
+        let finger: [f64; 2] =
+            std::array::from_fn(|i| spec.open_ctrl[i] + g * (spec.closed_ctrl[i] - spec.open_ctrl[i]));
         let kp = self.config.pd_omega.powi(2);
         let kd = 2.0 * self.config.pd_omega;
         let nv = self.data.model().ffi().nv as usize;
@@ -292,12 +269,9 @@ impl Env {
         for _ in 0..self.config.control_substeps {
             let q = self.arm_q();
             let qvel = self.data.qvel();
-            let acc: [f64; 7] = std::array::from_fn(|i| {
-                kp * (self.q_target[i] - q[i]) - kd * qvel[self.ids.arm_dof[i]]
-            });
-            self.data
-                .full_m(&mut full_m)
-                .expect("inertia buffer has nv*nv entries");
+            let acc: [f64; 7] =
+                std::array::from_fn(|i| kp * (self.q_target[i] - q[i]) - kd * qvel[self.ids.arm_dof[i]]);
+            self.data.full_m(&mut full_m).expect("inertia buffer has nv*nv entries");
             let m = DMatrix::from_row_slice(nv, nv, &full_m);
             let bias = self.data.qfrc_bias();
             let torque: [f64; 7] = std::array::from_fn(|i| {

@@ -44,10 +44,7 @@ pub struct Expert {
 impl Expert {
     /// A fresh expert for the episode `env` was just reset to.
     pub fn new(env: &Env) -> Expert {
-        let task = env
-            .instance()
-            .expect("expert needs a reset environment")
-            .task;
+        let task = env.instance().expect("expert needs a reset environment").task;
         let obj = task.object_kind();
         let p = env.object_pos(task.object);
         let grasp_z = (p[2] + grasp_offset(obj)).max(MIN_GRASP_Z);
@@ -66,10 +63,7 @@ impl Expert {
 
     /// The next action.
     pub fn act(&mut self, env: &Env) -> Action {
-        let task = env
-            .instance()
-            .expect("expert needs a reset environment")
-            .task;
+        let task = env.instance().expect("expert needs a reset environment").task;
         let obj = Vector3::from(env.object_pos(task.object));
         let (ee, _) = env.eef_pose();
         let (target, gripper) = match self.phase {
@@ -84,25 +78,15 @@ impl Expert {
                 let f = ((k + 1) as f64 / DESCEND_STEPS as f64).min(1.0);
                 let z = self.hover_z + f * (self.grasp_z - self.hover_z);
                 let settled = k + 1 >= DESCEND_STEPS && (ee[2] - self.grasp_z).abs() < 0.01;
-                self.phase = if settled || k > DESCEND_STEPS + 6 {
-                    Phase::Grasp(0)
-                } else {
-                    Phase::Descend(k + 1)
-                };
+                self.phase = if settled || k > DESCEND_STEPS + 6 { Phase::Grasp(0) } else { Phase::Descend(k + 1) };
                 (Vector3::new(obj[0], obj[1], z), -1.0)
             }
             Phase::Grasp(k) => {
-                self.phase = if k + 1 >= GRIP_STEPS {
-                    Phase::Lift
-                } else {
-                    Phase::Grasp(k + 1)
-                };
+                self.phase = if k + 1 >= GRIP_STEPS { Phase::Lift } else { Phase::Grasp(k + 1) };
                 (Vector3::new(ee[0], ee[1], self.grasp_z), 1.0)
             }
             Phase::Lift => {
-                if obj[2] < self.grasp_z - 0.05 + (ee[2] - self.grasp_z).max(0.0)
-                    && ee[2] > self.grasp_z + 0.08
-                {
+                if obj[2] < self.grasp_z - 0.05 + (ee[2] - self.grasp_z).max(0.0) && ee[2] > self.grasp_z + 0.08 {
                     // The object stayed behind: start over from above it.
                     self.restart(env);
                     (Vector3::new(ee[0], ee[1], LIFT_Z), -1.0)
@@ -125,21 +109,13 @@ impl Expert {
                 (goal, 1.0)
             }
             Phase::Release(k) => {
-                self.phase = if k + 1 >= GRIP_STEPS {
-                    Phase::Done
-                } else {
-                    Phase::Release(k + 1)
-                };
+                self.phase = if k + 1 >= GRIP_STEPS { Phase::Done } else { Phase::Release(k + 1) };
                 (ee, -1.0)
             }
             Phase::Done => (ee, -1.0),
         };
         let step = target - ee;
-        let clipped = if step.norm() > MAX_DELTA {
-            ee + step * (MAX_DELTA / step.norm())
-        } else {
-            target
-        };
+        let clipped = if step.norm() > MAX_DELTA { ee + step * (MAX_DELTA / step.norm()) } else { target };
         let (angle, axis) = to_angle_axis(&downward(self.yaw));
         Action::new([clipped[0], clipped[1], clipped[2]], angle, axis, gripper).clipped()
     }

@@ -27,9 +27,7 @@ impl SceneIds {
     pub fn resolve(model: &MjModel, robot: Robot) -> Result<SceneIds> {
         let spec = robot.spec();
         let id = |kind: MjtObjBase, name: &str| {
-            model
-                .name_to_id(kind, name)
-                .with_context(|| format!("scene has no {kind:?} named {name}"))
+            model.name_to_id(kind, name).with_context(|| format!("scene has no {kind:?} named {name}"))
         };
         let joint = |name: &str| id(MjtObjBase::mjOBJ_JOINT, &format!("{ROBOT_PREFIX}{name}"));
         let actuator_of = |jnt: usize| {
@@ -69,10 +67,7 @@ impl SceneIds {
             arm_actuator,
             finger_qpos,
             finger_actuator,
-            ee_site: id(
-                MjtObjBase::mjOBJ_SITE,
-                &format!("{ROBOT_PREFIX}{GRIPPER_PREFIX}grip_site"),
-            )?,
+            ee_site: id(MjtObjBase::mjOBJ_SITE, &format!("{ROBOT_PREFIX}{GRIPPER_PREFIX}grip_site"))?,
             object_body,
             object_qpos,
             object_dof,

@@ -26,14 +26,7 @@ pub struct IkSettings {
 
 impl Default for IkSettings {
     fn default() -> Self {
-        IkSettings {
-            damping: 0.05,
-            rest_gain: 0.05,
-            max_iters: 150,
-            max_step: 0.2,
-            tol_pos: 5e-4,
-            tol_rot: 5e-3,
-        }
+        IkSettings { damping: 0.05, rest_gain: 0.05, max_iters: 150, max_step: 0.2, tol_pos: 5e-4, tol_rot: 5e-3 }
     }
 }
 
@@ -58,13 +51,7 @@ impl IkSolver {
     /// Solver for the arm in `model`; `rest` is the preferred posture.
     pub fn new(model: Arc<MjModel>, ids: SceneIds, rest: [f64; 7]) -> IkSolver {
         let limits = ids.arm_joint.map(|j| model.jnt_range()[j]);
-        IkSolver {
-            scratch: MjData::new(model),
-            ids,
-            rest,
-            limits,
-            settings: IkSettings::default(),
-        }
+        IkSolver { scratch: MjData::new(model), ids, rest, limits, settings: IkSettings::default() }
     }
 
     /// End-effector position and rotation for arm joints `q`.
@@ -77,11 +64,7 @@ impl IkSolver {
     pub fn solve(&mut self, q0: &[f64; 7], pos: &Vector3<f64>, rot: &Matrix3<f64>) -> IkSolution {
         let s = self.settings;
         let mut q = SVector::<f64, 7>::from(*q0);
-        let mut best = IkSolution {
-            q: *q0,
-            pos_err: f64::INFINITY,
-            rot_err: f64::INFINITY,
-        };
+        let mut best = IkSolution { q: *q0, pos_err: f64::INFINITY, rot_err: f64::INFINITY };
         for _ in 0..s.max_iters {
             self.set_q(&q.into());
             let (p, r) = self.ee_pose();
@@ -89,11 +72,7 @@ impl IkSolver {
             let er = rotation_error(rot, &r);
             let (pe, re) = (ep.norm(), er.norm());
             if pe + 0.1 * re < best.pos_err + 0.1 * best.rot_err {
-                best = IkSolution {
-                    q: q.into(),
-                    pos_err: pe,
-                    rot_err: re,
-                };
+                best = IkSolution { q: q.into(), pos_err: pe, rot_err: re };
             }
             if pe < s.tol_pos && re < s.tol_rot {
                 break;
@@ -129,10 +108,7 @@ impl IkSolver {
 
     fn ee_pose(&self) -> (Vector3<f64>, Matrix3<f64>) {
         let site = self.ids.ee_site;
-        (
-            Vector3::from(self.scratch.site_xpos()[site]),
-            mat_from_mj(&self.scratch.site_xmat()[site]),
-        )
+        (Vector3::from(self.scratch.site_xpos()[site]), mat_from_mj(&self.scratch.site_xmat()[site]))
     }
 
     fn jacobian(&self) -> Jac {
@@ -140,11 +116,7 @@ impl IkSolver {
         let nv = jp.len() / 3;
         Jac::from_fn(|r, c| {
             let col = self.ids.arm_dof[c];
-            if r < 3 {
-                jp[r * nv + col]
-            } else {
-                jr[(r - 3) * nv + col]
-            }
+            if r < 3 { jp[r * nv + col] } else { jr[(r - 3) * nv + col] }
         })
     }
 }

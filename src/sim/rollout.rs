@@ -23,12 +23,7 @@ pub struct Episode {
 }
 
 /// Runs the expert on `instance` for at most `max_actions` actions, recording frames if `render`.
-pub fn run_expert(
-    env: &mut Env,
-    instance: &Instance,
-    max_actions: usize,
-    render: bool,
-) -> Result<Episode> {
+pub fn run_expert(env: &mut Env, instance: &Instance, max_actions: usize, render: bool) -> Result<Episode> {
     env.reset(instance);
     let mut expert = Expert::new(env);
     let mut steps = Vec::with_capacity(max_actions + 1);
@@ -38,11 +33,7 @@ pub fn run_expert(
         let observation = env.observe();
         let finished = steps.len() >= max_actions || settle >= SETTLE_STEPS;
         if finished {
-            steps.push(Step {
-                frame,
-                observation,
-                action: None,
-            });
+            steps.push(Step { frame, observation, action: None });
             break;
         }
         let action = expert.act(env);
@@ -50,14 +41,7 @@ pub fn run_expert(
         if expert.done() {
             settle += 1;
         }
-        steps.push(Step {
-            frame,
-            observation,
-            action: Some(action),
-        });
+        steps.push(Step { frame, observation, action: Some(action) });
     }
-    Ok(Episode {
-        steps,
-        stages: env.stages(),
-    })
+    Ok(Episode { steps, stages: env.stages() })
 }

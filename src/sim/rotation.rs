@@ -9,8 +9,9 @@ pub fn mat_from_mj(m: &[f64; 9]) -> Matrix3<f64> {
 /// The action's orientation form: (angle / pi, unit axis), with the axis sign fixed so that rotations by
 /// about pi (where axis and -axis mean the same) have one representation.
 pub fn to_angle_axis(r: &Matrix3<f64>) -> (f64, [f64; 3]) {
-    let rot = Rotation3::from_matrix_unchecked(*r);
-    match rot.axis_angle() {
+    // Through the quaternion: Rotation3::axis_angle loses the axis of half turns, the common case here.
+    let q = nalgebra::UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
+    match q.axis_angle() {
         None => (0.0, [0.0, 0.0, 1.0]),
         Some((axis, angle)) => {
             let mut a = axis.into_inner();
@@ -43,16 +44,13 @@ pub fn from_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> Matrix3<f64> {
     if v.norm() < 1e-9 {
         return Matrix3::identity();
     }
-    Rotation3::from_axis_angle(
-        &Unit::new_normalize(v),
-        angle_over_pi * std::f64::consts::PI,
-    )
-    .into_inner()
+    Rotation3::from_axis_angle(&Unit::new_normalize(v), angle_over_pi * std::f64::consts::PI).into_inner()
 }
 
 /// Rotation vector (axis * angle) taking `from` to `to`, expressed in the world frame.
 pub fn rotation_error(to: &Matrix3<f64>, from: &Matrix3<f64>) -> Vector3<f64> {
-    Rotation3::from_matrix_unchecked(to * from.transpose()).scaled_axis()
+    let rel = Rotation3::from_matrix_unchecked(to * from.transpose());
+    nalgebra::UnitQuaternion::from_rotation_matrix(&rel).scaled_axis()
 }
 
 /// Gripper pointing straight down, rotated by `yaw` about the vertical.

@@ -12,7 +12,7 @@ const ARENA_OFFSET: [f64; 3] = [0.5, 0.1, 0.0];
 /// Camera position of `frontview` (design.md).
 pub const CAMERA_POS: [f64; 3] = [1.6, 0.1, 1.75];
 /// Point the `frontview` camera looks at.
-const CAMERA_LOOKAT: [f64; 3] = [0.45, 0.1, 0.95];
+const CAMERA_LOOKAT: [f64; 3] = [0.45, 0.1, 1.0];
 /// Vertical field of view of `frontview`, degrees.
 pub const CAMERA_FOVY: f64 = 45.0;
 /// Prefix of every element of the attached robot.
@@ -21,17 +21,7 @@ pub const ROBOT_PREFIX: &str = "robot0_";
 pub const GRIPPER_PREFIX: &str = "gripper0_";
 
 /// Which geometry the camera sees.
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    clap::ValueEnum,
-    Default,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum Visuals {
     /// The robots' visual meshes (what the paper filmed).
@@ -54,9 +44,7 @@ pub fn build_model(robot: Robot, offscreen: usize) -> Result<MjModel> {
     let gripper_xml = root.join("grippers").join(spec.gripper_file);
     let arena_xml = root.join("arenas/bins_arena.xml");
 
-    let load = |path: &std::path::Path| {
-        MjSpec::from_xml(path).map_err(|e| anyhow!("loading {}: {e}", path.display()))
-    };
+    let load = |path: &std::path::Path| MjSpec::from_xml(path).map_err(|e| anyhow!("loading {}: {e}", path.display()));
     let mut arm = load(&robot_xml)?;
     let mut gripper = load(&gripper_xml)?;
     let mut arena = load(&arena_xml)?;
@@ -67,8 +55,8 @@ pub fn build_model(robot: Robot, offscreen: usize) -> Result<MjModel> {
         .attach_by_deep_copy(&mut gripper, GRIPPER_PREFIX, "")
         .map_err(|e| anyhow!("attaching the gripper: {e}"))?;
 
-    let mut scene = MjSpec::from_xml_string(&world_xml(offscreen, spec.base_pos))
-        .map_err(|e| anyhow!("scene template: {e}"))?;
+    let mut scene =
+        MjSpec::from_xml_string(&world_xml(offscreen, spec.base_pos)).map_err(|e| anyhow!("scene template: {e}"))?;
     let world = scene.world_body_mut();
     world
         .add_frame()
@@ -80,9 +68,7 @@ pub fn build_model(robot: Robot, offscreen: usize) -> Result<MjModel> {
         .with_pos(spec.base_pos)
         .attach_by_deep_copy(&mut arm, ROBOT_PREFIX, "")
         .map_err(|e| anyhow!("attaching the robot: {e}"))?;
-    let mut model = scene
-        .compile()
-        .map_err(|e| anyhow!("compiling the {robot} scene: {e}"))?;
+    let mut model = scene.compile().map_err(|e| anyhow!("compiling the {robot} scene: {e}"))?;
     disable_self_collision(&mut model);
     Ok(model)
 }
@@ -94,9 +80,7 @@ fn disable_self_collision(model: &mut MjModel) {
     let robot_geoms: Vec<usize> = (0..model.ffi().ngeom as usize)
         .filter(|&g| {
             let body = model.geom_bodyid()[g] as usize;
-            model
-                .id_to_name(MjtObjBase::mjOBJ_BODY, body)
-                .is_some_and(|name| name.starts_with(ROBOT_PREFIX))
+            model.id_to_name(MjtObjBase::mjOBJ_BODY, body).is_some_and(|name| name.starts_with(ROBOT_PREFIX))
         })
         .collect();
     let contype = model.geom_contype_mut();
@@ -114,10 +98,7 @@ fn world_xml(offscreen: usize, base: [f64; 3]) -> String {
         let [r, g, b, a] = obj.rgba();
         let geom = match obj.shape() {
             Shape::Box([x, y, z]) => format!(r#"type="box" size="{x} {y} {z}""#),
-            Shape::Cylinder {
-                radius,
-                half_height,
-            } => {
+            Shape::Cylinder { radius, half_height } => {
                 format!(r#"type="cylinder" size="{radius} {half_height}""#)
             }
         };

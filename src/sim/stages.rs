@@ -55,12 +55,7 @@ mod tests {
     use super::*;
 
     fn inputs(g: [f64; 3], z: f64, in_target: bool) -> StageInputs {
-        StageInputs {
-            object_in_gripper: g,
-            object_z: z,
-            start_z: 0.85,
-            in_target,
-        }
+        StageInputs { object_in_gripper: g, object_z: z, start_z: 0.85, in_target }
     }
 
     #[test]

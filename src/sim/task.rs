@@ -41,8 +41,7 @@ pub enum Shape {
 
 impl Object {
     /// Objects in task order (task = object * 4 + target).
-    pub const ALL: [Object; NUM_OBJECTS] =
-        [Object::Milk, Object::Bread, Object::Cereal, Object::Can];
+    pub const ALL: [Object; NUM_OBJECTS] = [Object::Milk, Object::Bread, Object::Cereal, Object::Can];
 
     /// Lower-case name.
     pub fn name(self) -> &'static str {
@@ -58,12 +57,9 @@ impl Object {
     pub fn shape(self) -> Shape {
         match self {
             Object::Milk => Shape::Box([0.022, 0.022, 0.045]),
-            Object::Bread => Shape::Box([0.040, 0.022, 0.020]),
+            Object::Bread => Shape::Box([0.040, 0.022, 0.026]),
             Object::Cereal => Shape::Box([0.035, 0.020, 0.055]),
-            Object::Can => Shape::Cylinder {
-                radius: 0.022,
-                half_height: 0.040,
-            },
+            Object::Can => Shape::Cylinder { radius: 0.022, half_height: 0.040 },
         }
     }
 
@@ -107,10 +103,7 @@ impl Task {
         if id >= NUM_TASKS {
             bail!("task id {id} out of range: tasks are 0..{}", NUM_TASKS - 1);
         }
-        Ok(Task {
-            object: id / NUM_TARGETS,
-            target: id % NUM_TARGETS,
-        })
+        Ok(Task { object: id / NUM_TARGETS, target: id % NUM_TARGETS })
     }
 
     /// Task id in 0..16.
@@ -133,7 +126,7 @@ impl Task {
 /// Centre (x, y) of target quadrant `q`.
 pub fn quadrant_centre(q: usize) -> [f64; 2] {
     let dx = if q / 2 == 0 { -0.5 } else { 0.5 } * QUADRANT_SIZE[0];
-    let dy = if q % 2 == 0 { -0.5 } else { 0.5 } * QUADRANT_SIZE[1];
+    let dy = if q.is_multiple_of(2) { -0.5 } else { 0.5 } * QUADRANT_SIZE[1];
     [TARGET_BIN[0] + dx, TARGET_BIN[1] + dy]
 }
 
@@ -181,19 +174,12 @@ impl Instance {
                     // [0, pi/4] has length pi/4, [3pi/4, 2pi] has length 5pi/4: draw over their union.
                     let u = rng.random_range(0.0..1.5 * PI);
                     let yaw = if u < PI / 4.0 { u } else { u + PI / 2.0 };
-                    break ObjectPose {
-                        pos: [x, y, BIN_FLOOR_TOP + obj.half_height()],
-                        yaw,
-                    };
+                    break ObjectPose { pos: [x, y, BIN_FLOOR_TOP + obj.half_height()], yaw };
                 }
             };
             placed.push(pose);
         }
-        Instance {
-            task,
-            seed,
-            objects: placed.try_into().expect("four objects"),
-        }
+        Instance { task, seed, objects: placed.try_into().expect("four objects") }
     }
 }
 
@@ -206,13 +192,7 @@ mod tests {
         for id in 0..NUM_TASKS {
             assert_eq!(Task::from_id(id).unwrap().id(), id);
         }
-        assert_eq!(
-            Task::from_id(6).unwrap(),
-            Task {
-                object: 1,
-                target: 2
-            }
-        );
+        assert_eq!(Task::from_id(6).unwrap(), Task { object: 1, target: 2 });
         let err = Task::from_id(16).unwrap_err().to_string();
         assert!(err.contains("16"), "{err}");
     }
@@ -237,8 +217,7 @@ mod tests {
             for (i, a) in inst.objects.iter().enumerate() {
                 assert!((a.pos[0] - SOURCE_BIN[0]).abs() <= PLACEMENT_HALF[0]);
                 assert!((a.pos[1] - SOURCE_BIN[1]).abs() <= PLACEMENT_HALF[1]);
-                let yaw_ok =
-                    (0.0..=PI / 4.0).contains(&a.yaw) || (0.75 * PI..=2.0 * PI).contains(&a.yaw);
+                let yaw_ok = (0.0..=PI / 4.0).contains(&a.yaw) || (0.75 * PI..=2.0 * PI).contains(&a.yaw);
                 assert!(yaw_ok, "yaw {}", a.yaw);
                 for b in &inst.objects[i + 1..] {
                     assert!((a.pos[0] - b.pos[0]).hypot(a.pos[1] - b.pos[1]) > 0.05);

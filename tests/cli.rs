@@ -1,0 +1,35 @@
+//! The command line's handling of bad input: one clear error line and a non-zero exit.
+use std::process::Command;
+
+fn oneshot() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_oneshot-lab"))
+}
+
+#[test]
+fn unknown_robot_is_an_error_naming_it() {
+    let out = oneshot().args(["expert-check", "--robot", "ur5"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("ur5"), "{err}");
+}
+
+#[test]
+fn missing_assets_are_an_error_naming_the_path() {
+    let out = oneshot()
+        .args(["expert-check", "--robot", "panda", "--per-task", "1"])
+        .env("ONESHOT_ASSETS", "/nonexistent/assets")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("/nonexistent/assets") && err.starts_with("error:"), "{err}");
+}
+
+#[test]
+fn unwritable_contact_sheet_path_is_an_error_naming_it() {
+    let out =
+        oneshot().args(["contact-sheet", "--instances", "1", "--out", "/nonexistent/dir/sheet.png"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("/nonexistent/dir/sheet.png"), "{err}");
+}

@@ -1,0 +1,96 @@
+//! The simulated world, end to end: IK accuracy, determinism, the expert, rendering and bad input.
+use nalgebra::Vector3;
+use oneshot_lab::commands::expert_check::expert_check;
+use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::env::{Env, WorldConfig};
+use oneshot_lab::sim::robot::Robot;
+use oneshot_lab::sim::rollout::run_expert;
+use oneshot_lab::sim::rotation::rotation_error;
+use oneshot_lab::sim::task::{Instance, Task};
+use rand::{Rng, SeedableRng};
+
+fn small_world() -> WorldConfig {
+    WorldConfig { image: ImageSize { height: 48, width: 64 }, ..WorldConfig::default() }
+}
+
+#[test]
+fn ik_reaches_random_reachable_targets_within_1cm_and_0_05rad() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    for robot in Robot::ALL {
+        let mut env = Env::new(robot, &small_world(), false).unwrap();
+        let rest = robot.spec().init_qpos;
+        for _ in 0..25 {
+            // A reachable target: the pose of a random posture near the working pose.
+            let q: [f64; 7] = std::array::from_fn(|i| rest[i] + rng.random_range(-0.4..0.4));
+            let (pos, rot) = env.ik().forward(&q);
+            let sol = env.ik().solve(&rest, &pos, &rot);
+            let (got_pos, got_rot) = env.ik().forward(&sol.q);
+            let dp = (got_pos - pos).norm();
+            let dr = rotation_error(&rot, &got_rot).norm();
+            assert!(dp < 0.01 && dr < 0.05, "{robot}: position error {dp:.4} m, rotation error {dr:.4} rad");
+        }
+    }
+}
+
+#[test]
+fn same_instance_gives_the_same_episode() {
+    let mut env = Env::new(Robot::Panda, &small_world(), false).unwrap();
+    let inst = Instance::sample(Task::from_id(2).unwrap(), 11);
+    let a = run_expert(&mut env, &inst, 20, false).unwrap();
+    let b = run_expert(&mut env, &inst, 20, false).unwrap();
+    assert_eq!(a.steps.len(), b.steps.len());
+    for (x, y) in a.steps.iter().zip(&b.steps) {
+        assert_eq!(x.observation, y.observation);
+        assert_eq!(x.action, y.action);
+    }
+}
+
+#[test]
+fn expert_places_the_milk_in_every_quadrant_with_both_robots() {
+    for robot in Robot::ALL {
+        let report = expert_check(robot, 2, 0, 100).unwrap();
+        for task in 0..4 {
+            assert_eq!(report.per_task[task][2], 2, "{robot} task {task}: {:?}", report.per_task[task]);
+        }
+        let overall = report.overall();
+        assert!(overall[0] >= overall[1] && overall[1] >= overall[2], "stages are nested: {overall:?}");
+    }
+}
+
+#[test]
+fn end_effector_moves_to_the_commanded_target() {
+    let mut env = Env::new(Robot::Sawyer, &small_world(), false).unwrap();
+    env.reset(&Instance::sample(Task::from_id(0).unwrap(), 5));
+    let target = [0.6, 0.1, 1.0];
+    let rot = oneshot_lab::sim::rotation::downward(0.3);
+    let (angle, axis) = oneshot_lab::sim::rotation::to_angle_axis(&rot);
+    let action = oneshot_lab::sim::action::Action::new(target, angle, axis, -1.0);
+    for _ in 0..15 {
+        env.step(&action);
+    }
+    let (p, r) = env.eef_pose();
+    assert!((p - Vector3::from(target)).norm() < 0.01, "end-effector at {p:?}");
+    assert!(rotation_error(&rot, &r).norm() < 0.05);
+}
+
+#[test]
+fn frames_show_the_scene_and_the_end_effector_projects_inside() {
+    let world = small_world();
+    for robot in Robot::ALL {
+        let mut env = Env::new(robot, &world, true).unwrap();
+        env.reset(&Instance::sample(Task::from_id(0).unwrap(), 1));
+        let frame = env.render().unwrap();
+        assert_eq!(frame.len(), world.image.rgb_len());
+        let distinct: std::collections::HashSet<&[u8]> = frame.chunks(3).collect();
+        assert!(distinct.len() > 50, "{robot}: frame has only {} colours", distinct.len());
+        let [col, row] = env.observe().eef_pixel;
+        assert!(col > 0.0 && col < 64.0 && row > 0.0 && row < 48.0, "{robot}: eef pixel {col},{row}");
+    }
+}
+
+#[test]
+fn invalid_image_size_is_rejected_with_the_value() {
+    let world = WorldConfig { image: ImageSize { height: 100, width: 50 }, ..WorldConfig::default() };
+    let err = Env::new(Robot::Panda, &world, true).err().expect("height > width must fail").to_string();
+    assert!(err.contains("100") && err.contains("50"), "{err}");
+}
