@@ -1,7 +1,7 @@
 //! The `oneshot-lab` command line.
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use oneshot_lab::commands::{contact_sheet, expert_check};
+use oneshot_lab::commands::{bench_world, contact_sheet, expert_check};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
@@ -29,6 +29,19 @@ enum Command {
         /// Action budget per episode.
         #[arg(long, default_value_t = 100)]
         max_actions: usize,
+    },
+    /// Throughput of expert episodes beside a bare MuJoCo step + render loop.
+    BenchWorld {
+        #[arg(long, value_enum, default_value = "sawyer")]
+        robot: Robot,
+        #[arg(long, default_value_t = 4)]
+        episodes: usize,
+        #[arg(long, default_value_t = 240)]
+        height: usize,
+        #[arg(long, default_value_t = 320)]
+        width: usize,
+        #[arg(long, value_enum, default_value = "full")]
+        visuals: Visuals,
     },
     /// A PNG of first frames of several instances for both robots.
     ContactSheet {
@@ -61,6 +74,11 @@ fn run(cli: Cli) -> Result<()> {
         Command::ExpertCheck { robot, per_task, seed, max_actions } => {
             let report = expert_check::expert_check(robot, per_task, seed, max_actions)?;
             expert_check::print_report(&report);
+        }
+        Command::BenchWorld { robot, episodes, height, width, visuals } => {
+            let world = WorldConfig { image: ImageSize { height, width }, visuals, ..WorldConfig::default() };
+            let bench = bench_world::bench_world(robot, &world, episodes)?;
+            bench_world::print_bench(robot, &world, &bench);
         }
         Command::ContactSheet { out, instances, seed, height, width, visuals } => {
             let world = WorldConfig { image: ImageSize { height, width }, visuals, ..WorldConfig::default() };

@@ -1,3 +1,4 @@
 //! The command-line tools, one module each.
+pub mod bench_world;
 pub mod contact_sheet;
 pub mod expert_check;

@@ -256,6 +256,13 @@ impl Env {
         self.config.control_substeps * self.config.physics_per_substep()
     }
 
+    /// Advances the physics `n` steps with the controls as they are (the benchmarks' bare loop).
+    pub fn step_physics_only(&mut self, n: usize) {
+        for _ in 0..n {
+            self.data.step();
+        }
+    }
+
     /// Runs the joint PD loop with gravity compensation for one action period.
     fn run_controller(&mut self) {
         let spec = self.robot.spec();
