@@ -36,12 +36,8 @@ enum Command {
         robot: Robot,
         #[arg(long, default_value_t = 4)]
         episodes: usize,
-        #[arg(long, default_value_t = 240)]
-        height: usize,
-        #[arg(long, default_value_t = 320)]
-        width: usize,
-        #[arg(long, value_enum, default_value = "full")]
-        visuals: Visuals,
+        #[command(flatten)]
+        frames: FrameArgs,
     },
     /// A PNG of first frames of several instances for both robots.
     ContactSheet {
@@ -51,15 +47,30 @@ enum Command {
         instances: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Frame height and width.
-        #[arg(long, default_value_t = 240)]
-        height: usize,
-        #[arg(long, default_value_t = 320)]
-        width: usize,
-        /// Visual meshes, or collision geometry only.
-        #[arg(long, value_enum, default_value = "full")]
-        visuals: Visuals,
+        #[command(flatten)]
+        frames: FrameArgs,
     },
+}
+
+/// Frame size and visuals of rendered scenes.
+#[derive(clap::Args)]
+struct FrameArgs {
+    /// Frame height (pixels).
+    #[arg(long, default_value_t = 240)]
+    height: usize,
+    /// Frame width (pixels).
+    #[arg(long, default_value_t = 320)]
+    width: usize,
+    /// Visual meshes, or collision geometry only.
+    #[arg(long, value_enum, default_value = "full")]
+    visuals: Visuals,
+}
+
+impl FrameArgs {
+    fn world(&self) -> WorldConfig {
+        let image = ImageSize { height: self.height, width: self.width };
+        WorldConfig { image, visuals: self.visuals, ..WorldConfig::default() }
+    }
 }
 
 fn main() {
@@ -75,13 +86,13 @@ fn run(cli: Cli) -> Result<()> {
             let report = expert_check::expert_check(robot, per_task, seed, max_actions)?;
             expert_check::print_report(&report);
         }
-        Command::BenchWorld { robot, episodes, height, width, visuals } => {
-            let world = WorldConfig { image: ImageSize { height, width }, visuals, ..WorldConfig::default() };
+        Command::BenchWorld { robot, episodes, frames } => {
+            let world = frames.world();
             let bench = bench_world::bench_world(robot, &world, episodes)?;
             bench_world::print_bench(robot, &world, &bench);
         }
-        Command::ContactSheet { out, instances, seed, height, width, visuals } => {
-            let world = WorldConfig { image: ImageSize { height, width }, visuals, ..WorldConfig::default() };
+        Command::ContactSheet { out, instances, seed, frames } => {
+            let world = frames.world();
             contact_sheet::contact_sheet(&out, instances, seed, &world)?;
             println!("wrote {}", out.display());
         }
