@@ -33,3 +33,11 @@ fn unwritable_contact_sheet_path_is_an_error_naming_it() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("/nonexistent/dir/sheet.png"), "{err}");
 }
+
+#[test]
+fn zero_instances_per_task_is_an_error_naming_the_flag() {
+    let out = oneshot().args(["expert-check", "--robot", "panda", "--per-task", "0"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--per-task (0)"), "{err}");
+}

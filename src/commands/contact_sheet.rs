@@ -2,11 +2,14 @@
 use crate::sim::env::{Env, WorldConfig};
 use crate::sim::robot::Robot;
 use crate::sim::task::{Instance, NUM_TASKS, Task};
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use std::path::Path;
 
 /// Renders `instances` first frames per robot (rows: robots, columns: instances) into `out`.
 pub fn contact_sheet(out: &Path, instances: usize, seed: u64, world: &WorldConfig) -> Result<()> {
+    if instances == 0 {
+        bail!("--instances must be at least 1");
+    }
     let (h, w) = (world.image.height, world.image.width);
     let mut sheet = image::RgbImage::new((w * instances) as u32, (h * Robot::ALL.len()) as u32);
     for (row, robot) in Robot::ALL.iter().enumerate() {

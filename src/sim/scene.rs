@@ -2,7 +2,7 @@
 //! gripper (attached through MuJoCo's model-editing API), lights and the `frontview` camera.
 use super::assets::assets_root;
 use super::robot::Robot;
-use super::task::{NUM_OBJECTS, Object, Shape};
+use super::task::{Object, Shape};
 use anyhow::{Context, Result, anyhow};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_editing::Attach;
@@ -112,7 +112,6 @@ fn world_xml(offscreen: usize, base: [f64; 3]) -> String {
             name = object_body_name(*obj)
         ));
     }
-    debug_assert_eq!(Object::ALL.len(), NUM_OBJECTS);
     let [xx, xy, xz, yx, yy, yz] = camera_xyaxes();
     let [cx, cy, cz] = CAMERA_POS;
     let base_top = base[2];
