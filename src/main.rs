@@ -2,6 +2,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use oneshot_lab::commands::{bench_world, contact_sheet, expert_check};
+use oneshot_lab::data::collect::{CollectConfig, collect};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
@@ -36,6 +37,29 @@ enum Command {
         robot: Robot,
         #[arg(long, default_value_t = 4)]
         episodes: usize,
+        #[command(flatten)]
+        frames: FrameArgs,
+    },
+    /// Expert trajectories of one robot into a new dataset folder.
+    Collect {
+        #[arg(long, value_enum)]
+        robot: Robot,
+        /// Output folder (must not exist; it appears only when complete).
+        #[arg(long)]
+        out: PathBuf,
+        /// Task ids, comma separated (default: all 16).
+        #[arg(long, value_delimiter = ',')]
+        tasks: Option<Vec<usize>>,
+        /// Trajectories per task.
+        #[arg(long, default_value_t = 100)]
+        per_task: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Parallel workers (default: CPU cores).
+        #[arg(long)]
+        workers: Option<usize>,
+        #[arg(long, default_value_t = 90)]
+        jpeg_quality: u8,
         #[command(flatten)]
         frames: FrameArgs,
     },
@@ -91,6 +115,22 @@ fn run(cli: Cli) -> Result<()> {
             let bench = bench_world::bench_world(robot, &world, episodes)?;
             bench_world::print_bench(robot, &world, &bench);
         }
+        Command::Collect { robot, out, tasks, per_task, seed, workers, jpeg_quality, frames } => {
+            let mut config =
+                CollectConfig { per_task, seed, jpeg_quality, world: frames.world(), ..CollectConfig::paper(robot) };
+            if let Some(tasks) = tasks {
+                config.tasks = tasks;
+            }
+            let manifest = collect(&config, &out, workers.unwrap_or_else(default_workers), true)?;
+            let retries: usize = manifest.trajectories.iter().map(|e| e.attempts - 1).sum();
+            println!(
+                "wrote {} trajectories ({} frames, {} expert retries) to {}",
+                manifest.trajectories.len(),
+                manifest.total_steps(),
+                retries,
+                out.display()
+            );
+        }
         Command::ContactSheet { out, instances, seed, frames } => {
             let world = frames.world();
             contact_sheet::contact_sheet(&out, instances, seed, &world)?;
@@ -98,4 +138,9 @@ fn run(cli: Cli) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Worker threads when none are asked for: the machine's cores.
+fn default_workers() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }

@@ -41,3 +41,15 @@ fn zero_instances_per_task_is_an_error_naming_the_flag() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--per-task (0)"), "{err}");
 }
+
+#[test]
+fn collect_with_a_task_out_of_range_is_an_error_naming_it() {
+    let out = oneshot()
+        .args(["collect", "--robot", "panda", "--tasks", "2,17", "--per-task", "1", "--out", "/tmp/never-written"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("17") && err.lines().count() == 1, "{err}");
+    assert!(!std::path::Path::new("/tmp/never-written").exists());
+}

@@ -1,0 +1,193 @@
+//! Collection of expert trajectories in parallel, written atomically with a manifest of blake3 digests.
+use super::manifest::{Manifest, ManifestEntry, TRAJECTORY_DIR};
+use super::trajectory::{Trajectory, TrajectoryMeta};
+use crate::seeds::derive_seed;
+use crate::sim::env::{Env, WorldConfig};
+use crate::sim::robot::Robot;
+use crate::sim::rollout::run_expert;
+use crate::sim::task::{Instance, NUM_TASKS, Task};
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// What to collect.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollectConfig {
+    pub robot: Robot,
+    /// Task ids (0..16).
+    pub tasks: Vec<usize>,
+    /// Trajectories per task.
+    pub per_task: usize,
+    /// Root seed; instance seeds derive from it, the robot, the task and the index.
+    pub seed: u64,
+    pub world: WorldConfig,
+    /// Action budget of one expert episode.
+    pub max_actions: usize,
+    /// Expert attempts (each on a fresh layout) before a trajectory slot fails the collection.
+    pub max_attempts: usize,
+    /// JPEG quality of stored frames (1..=100).
+    pub jpeg_quality: u8,
+}
+
+impl CollectConfig {
+    /// The defaults of the paper's code for `robot`: all tasks, 100 per task.
+    pub fn paper(robot: Robot) -> CollectConfig {
+        CollectConfig {
+            robot,
+            tasks: (0..NUM_TASKS).collect(),
+            per_task: 100,
+            seed: 0,
+            world: WorldConfig::default(),
+            max_actions: 100,
+            max_attempts: 10,
+            jpeg_quality: 90,
+        }
+    }
+
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        self.world.validate()?;
+        if self.tasks.is_empty() {
+            bail!("collect.tasks is empty");
+        }
+        for &t in &self.tasks {
+            Task::from_id(t).with_context(|| format!("collect.tasks contains {t}"))?;
+        }
+        if self.per_task == 0 {
+            bail!("collect.per_task must be at least 1");
+        }
+        if self.max_actions == 0 || self.max_attempts == 0 {
+            bail!("collect.max_actions and collect.max_attempts must be at least 1");
+        }
+        if !(1..=100).contains(&self.jpeg_quality) {
+            bail!("collect.jpeg_quality = {} out of range 1..=100", self.jpeg_quality);
+        }
+        Ok(())
+    }
+
+    /// Seed of the layout of `attempt` for slot `index` of `task`.
+    pub fn instance_seed(&self, task: usize, index: usize, attempt: usize) -> u64 {
+        derive_seed("collect", &[self.seed, self.robot as u64, task as u64, index as u64, attempt as u64])
+    }
+}
+
+/// One trajectory slot to fill.
+#[derive(Clone, Copy)]
+struct Slot {
+    task: usize,
+    index: usize,
+}
+
+/// Collects into `out` with `workers` threads. `out` must not exist; it appears only once complete.
+pub fn collect(config: &CollectConfig, out: &Path, workers: usize, progress: bool) -> Result<Manifest> {
+    config.validate()?;
+    if out.exists() {
+        bail!("output folder {} already exists", out.display());
+    }
+    let staging = staging_path(out)?;
+    if staging.exists() {
+        std::fs::remove_dir_all(&staging).with_context(|| format!("removing stale {}", staging.display()))?;
+    }
+    let traj_dir = staging.join(TRAJECTORY_DIR);
+    std::fs::create_dir_all(&traj_dir).with_context(|| format!("creating {}", traj_dir.display()))?;
+
+    let slots: Vec<Slot> =
+        config.tasks.iter().flat_map(|&task| (0..config.per_task).map(move |index| Slot { task, index })).collect();
+    let bar = progress_bar(slots.len() as u64, progress, &format!("collect {}", config.robot));
+    let next = AtomicUsize::new(0);
+    let entries: Mutex<Vec<(usize, ManifestEntry)>> = Mutex::new(Vec::with_capacity(slots.len()));
+    let workers = workers.clamp(1, slots.len());
+    std::thread::scope(|scope| -> Result<()> {
+        let handles: Vec<_> = (0..workers)
+            .map(|_| {
+                scope.spawn(|| -> Result<()> {
+                    let mut env = Env::new(config.robot, &config.world, true)?;
+                    loop {
+                        let k = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(&slot) = slots.get(k) else { return Ok(()) };
+                        let entry = collect_slot(config, &mut env, slot, &traj_dir)?;
+                        entries.lock().expect("no worker panicked holding the lock").push((k, entry));
+                        bar.inc(1);
+                    }
+                })
+            })
+            .collect();
+        for h in handles {
+            h.join().expect("collection worker panicked")?;
+        }
+        Ok(())
+    })?;
+    bar.finish_and_clear();
+
+    let mut entries = entries.into_inner().expect("workers finished");
+    entries.sort_by_key(|(k, _)| *k);
+    let manifest = Manifest::new(config.clone(), entries.into_iter().map(|(_, e)| e).collect());
+    manifest.save(&staging)?;
+    std::fs::rename(&staging, out).with_context(|| format!("moving {} to {}", staging.display(), out.display()))?;
+    Ok(manifest)
+}
+
+/// Runs the expert on fresh layouts until it places the object, then writes the trajectory.
+fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -> Result<ManifestEntry> {
+    let task = Task::from_id(slot.task)?;
+    for attempt in 0..config.max_attempts {
+        let seed = config.instance_seed(slot.task, slot.index, attempt);
+        let episode = run_expert(env, &Instance::sample(task, seed), config.max_actions, true)?;
+        if !episode.stages.placed {
+            continue;
+        }
+        let meta = TrajectoryMeta {
+            format_version: super::trajectory::FORMAT_VERSION,
+            robot: config.robot,
+            task: slot.task,
+            instance_seed: seed,
+            height: config.world.image.height,
+            width: config.world.image.width,
+            stages: episode.stages,
+        };
+        let bytes = Trajectory::from_episode(meta, &episode, config.jpeg_quality)?.to_bytes()?;
+        let file = format!("{TRAJECTORY_DIR}/task{:02}_{:04}.safetensors", slot.task, slot.index);
+        std::fs::write(dir.parent().expect("trajectory dir has a parent").join(&file), &bytes)
+            .with_context(|| format!("writing {file}"))?;
+        return Ok(ManifestEntry {
+            file,
+            task: slot.task,
+            index: slot.index,
+            instance_seed: seed,
+            attempts: attempt + 1,
+            steps: episode.steps.len(),
+            bytes: bytes.len() as u64,
+            blake3: blake3::hash(&bytes).to_hex().to_string(),
+        });
+    }
+    bail!("expert failed {} attempts on task {} slot {}", config.max_attempts, slot.task, slot.index)
+}
+
+/// The sibling folder a collection is staged in before its rename.
+pub fn staging_path(out: &Path) -> Result<PathBuf> {
+    let name = out.file_name().with_context(|| format!("output path {} has no folder name", out.display()))?;
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !parent.is_dir() {
+        bail!("parent folder {} of the output does not exist", parent.display());
+    }
+    Ok(parent.join(format!(".{}.partial", name.to_string_lossy())))
+}
+
+/// A progress bar on stderr, hidden when `show` is false.
+pub fn progress_bar(len: u64, show: bool, label: &str) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {per_sec} eta {eta}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(label.to_string());
+    bar
+}

@@ -1,0 +1,97 @@
+//! The non-local (self-)attention layer over all T*H*W feature tokens, with frame-level masking,
+//! and the sinusoidal positional encoding of the tokens.
+use tch::nn::{self, Module};
+use tch::{Device, Kind, Tensor};
+
+/// Sinusoidal encoding `[tokens, channels]` of token index t*H*W + h*W + w (Vaswani et al.).
+pub fn positional_encoding(tokens: i64, channels: i64, device: Device) -> Tensor {
+    let pos = Tensor::arange(tokens, (Kind::Float, device)).unsqueeze(1);
+    let i = Tensor::arange_start_step(0, channels, 2, (Kind::Float, device));
+    let freq = (i * (-(10_000f64.ln()) / channels as f64)).exp().unsqueeze(0);
+    let angle = pos * freq;
+    Tensor::stack(&[angle.sin(), angle.cos()], 2).view([tokens, channels])
+}
+
+/// Boolean mask `[tokens, tokens]`, true where a query token may attend to a key token: keys in any of the first
+/// `visible` frames, or in a frame no later than the query's.
+pub fn frame_causal_mask(frames: i64, tokens_per_frame: i64, visible: i64, device: Device) -> Tensor {
+    let frame = Tensor::arange(frames, (Kind::Int64, device)).repeat_interleave_self_int(tokens_per_frame, 0, None);
+    let q = frame.unsqueeze(1);
+    let k = frame.unsqueeze(0);
+    k.le_tensor(&q).logical_or(&k.lt(visible))
+}
+
+/// Settings of one attention layer.
+#[derive(Debug, Clone, Copy)]
+pub struct AttentionSpec {
+    pub channels: i64,
+    pub inner: i64,
+    pub heads: i64,
+    pub temperature: f64,
+    pub dropout: f64,
+}
+
+/// Multi-head attention with 1x1x1 projections, ReLU + dropout on the output, a residual and batch norm.
+#[derive(Debug)]
+pub struct AttentionLayer {
+    spec: AttentionSpec,
+    query: nn::Linear,
+    key: nn::Linear,
+    value: nn::Linear,
+    out: nn::Linear,
+    norm: nn::BatchNorm,
+}
+
+impl AttentionLayer {
+    /// A layer under `vs`.
+    pub fn new(vs: &nn::Path, spec: AttentionSpec) -> AttentionLayer {
+        let nobias = nn::LinearConfig { bias: false, ..Default::default() };
+        AttentionLayer {
+            spec,
+            query: nn::linear(vs / "query", spec.channels, spec.inner, nobias),
+            key: nn::linear(vs / "key", spec.channels, spec.inner, nobias),
+            value: nn::linear(vs / "value", spec.channels, spec.inner, nobias),
+            out: nn::linear(vs / "out", spec.inner, spec.channels, Default::default()),
+            norm: nn::batch_norm1d(vs / "norm", spec.channels, Default::default()),
+        }
+    }
+
+    /// Tokens `[B, N, C]` to tokens `[B, N, C]`; `mask` `[N, N]` (true = may attend) or none for full attention.
+    pub fn forward(&self, x: &Tensor, mask: Option<&Tensor>, train: bool) -> Tensor {
+        let (b, n, _) = x.size3().expect("tokens are [B, N, C]");
+        let heads = self.spec.heads;
+        let split = |t: Tensor| t.view([b, n, heads, -1]).transpose(1, 2);
+        let (q, k, v) = (split(self.query.forward(x)), split(self.key.forward(x)), split(self.value.forward(x)));
+        let mut scores = q.matmul(&k.transpose(-2, -1)) / self.spec.temperature;
+        if let Some(m) = mask {
+            scores = scores.masked_fill(&m.logical_not(), f64::NEG_INFINITY);
+        }
+        let attended = scores.softmax(-1, Kind::Float).matmul(&v).transpose(1, 2).reshape([b, n, self.spec.inner]);
+        let y = self.out.forward(&attended).relu().dropout(self.spec.dropout, train);
+        (x + y).transpose(1, 2).apply_t(&self.norm, train).transpose(1, 2)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mask_lets_tokens_see_visible_frames_and_the_past_only() {
+        let m = frame_causal_mask(4, 2, 2, Device::Cpu);
+        let allowed = |q: i64, k: i64| m.int64_value(&[q, k]) == 1;
+        // Token 1 is in frame 0 (visible frame), token 7 in frame 3.
+        assert!(allowed(1, 3), "visible frames see each other");
+        assert!(allowed(4, 0) && allowed(6, 5) && allowed(7, 6));
+        assert!(!allowed(4, 6) && !allowed(0, 4) && !allowed(5, 7));
+    }
+
+    #[test]
+    fn encoding_is_distinct_per_token_and_bounded() {
+        let pe = positional_encoding(50, 16, Device::Cpu);
+        assert_eq!(pe.size(), [50, 16]);
+        assert!(pe.abs().max().double_value(&[]) <= 1.0);
+        let d = (pe.get(3) - pe.get(4)).abs().sum(Kind::Float).double_value(&[]);
+        assert!(d > 0.1);
+    }
+}

@@ -1,0 +1,125 @@
+//! Model settings, with the paper's values (design.md section 3) as defaults.
+use anyhow::{Result, bail};
+use serde::{Deserialize, Serialize};
+
+/// Which demonstrator frames the policy sees (the context ablation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ContextMode {
+    /// `context_frames` frames, one from each equal segment of the video, first and last forced.
+    #[default]
+    Spread,
+    /// The first and the last frame.
+    FirstLast,
+    /// The last frame only.
+    Final,
+}
+
+/// Architecture and head sizes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    /// ResNet-18 base width (64 is the standard net; smaller widths for CPU runs).
+    pub backbone_width: i64,
+    /// Optional safetensors file of torchvision ResNet-18 weights (names like `layer1.0.conv1.weight`).
+    pub pretrained_backbone: Option<String>,
+    /// Attention layers over context + agent frames.
+    pub attention_layers: usize,
+    /// Inner width of the query/key/value projections.
+    pub attention_inner: i64,
+    pub attention_heads: i64,
+    /// Softmax temperature; default sqrt(feature channels), 512 in the paper.
+    pub attention_temperature: Option<f64>,
+    pub dropout: f64,
+    /// Hidden width of the frame and task embedding MLPs.
+    pub embed_hidden: i64,
+    /// Width of the L2-normalised frame and task embeddings.
+    pub latent: i64,
+    /// Hidden width of the policy and inverse-dynamics MLPs.
+    pub policy_hidden: i64,
+    /// Hidden width of the point head.
+    pub point_hidden: i64,
+    /// Logistic mixture components per action dimension.
+    pub mixtures: i64,
+    /// Discretisation bins of each action dimension.
+    pub bins: i64,
+    pub log_scale_min: f64,
+    pub context: ContextMode,
+    /// Demonstrator frames for `context = "spread"`.
+    pub context_frames: usize,
+    /// Agent frames in a training window (actions = frames - 1).
+    pub agent_frames: usize,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        ModelConfig {
+            backbone_width: 64,
+            pretrained_backbone: None,
+            attention_layers: 2,
+            attention_inner: 128,
+            attention_heads: 4,
+            attention_temperature: None,
+            dropout: 0.2,
+            embed_hidden: 256,
+            latent: 40,
+            policy_hidden: 32,
+            point_hidden: 40,
+            mixtures: 2,
+            bins: 256,
+            log_scale_min: -7.0,
+            context: ContextMode::Spread,
+            context_frames: 4,
+            agent_frames: 7,
+        }
+    }
+}
+
+impl ModelConfig {
+    /// Number of demonstrator frames the policy sees.
+    pub fn context_len(&self) -> usize {
+        match self.context {
+            ContextMode::Spread => self.context_frames,
+            ContextMode::FirstLast => 2,
+            ContextMode::Final => 1,
+        }
+    }
+
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        let positive = [
+            ("backbone_width", self.backbone_width),
+            ("attention_inner", self.attention_inner),
+            ("attention_heads", self.attention_heads),
+            ("embed_hidden", self.embed_hidden),
+            ("latent", self.latent),
+            ("policy_hidden", self.policy_hidden),
+            ("point_hidden", self.point_hidden),
+            ("mixtures", self.mixtures),
+        ];
+        for (key, v) in positive {
+            if v <= 0 {
+                bail!("model.{key} = {v} must be positive");
+            }
+        }
+        if self.attention_inner % self.attention_heads != 0 {
+            bail!("model.attention_inner = {} is not divisible by attention_heads", self.attention_inner);
+        }
+        if self.bins < 2 {
+            bail!("model.bins = {} must be at least 2", self.bins);
+        }
+        if !(0.0..1.0).contains(&self.dropout) {
+            bail!("model.dropout = {} out of range [0, 1)", self.dropout);
+        }
+        if self.attention_temperature.is_some_and(|t| t <= 0.0) {
+            bail!("model.attention_temperature must be positive");
+        }
+        if self.context == ContextMode::Spread && self.context_frames < 2 {
+            bail!("model.context_frames = {} must be at least 2 (first and last)", self.context_frames);
+        }
+        if self.agent_frames < 2 {
+            bail!("model.agent_frames = {} must be at least 2 (one action)", self.agent_frames);
+        }
+        Ok(())
+    }
+}

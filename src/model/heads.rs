@@ -1,0 +1,120 @@
+//! Small heads of the policy: spatial softmax, the normalised embedding MLP, and the 2-D Gaussian point head.
+use tch::nn::{self, Module, ModuleT};
+use tch::{Kind, Tensor};
+
+/// Expected (x, y) in [-1, 1] of each channel's spatial softmax: `[N, C, H, W]` to `[N, 2C]`.
+pub fn spatial_softmax(x: &Tensor) -> Tensor {
+    let (n, c, h, w) = x.size4().expect("features are [N, C, H, W]");
+    let p = x.view([n, c, h * w]).softmax(-1, Kind::Float).view([n, c, h, w]);
+    let opts = (Kind::Float, x.device());
+    let xs = Tensor::linspace(-1.0, 1.0, w, opts);
+    let ys = Tensor::linspace(-1.0, 1.0, h, opts);
+    let ex = (p.sum_dim_intlist([2i64].as_slice(), false, Kind::Float) * xs).sum_dim_intlist(
+        [-1i64].as_slice(),
+        false,
+        Kind::Float,
+    );
+    let ey = (p.sum_dim_intlist([3i64].as_slice(), false, Kind::Float) * ys).sum_dim_intlist(
+        [-1i64].as_slice(),
+        false,
+        Kind::Float,
+    );
+    Tensor::cat(&[ex, ey], 1)
+}
+
+/// Linear -> dropout -> ReLU -> Linear -> L2 normalisation.
+#[derive(Debug)]
+pub struct EmbeddingMlp {
+    hidden: nn::Linear,
+    out: nn::Linear,
+    dropout: f64,
+}
+
+impl EmbeddingMlp {
+    /// An MLP from `input` to a unit vector of `latent` entries.
+    pub fn new(vs: &nn::Path, input: i64, hidden: i64, latent: i64, dropout: f64) -> EmbeddingMlp {
+        EmbeddingMlp {
+            hidden: nn::linear(vs / "hidden", input, hidden, Default::default()),
+            out: nn::linear(vs / "out", hidden, latent, Default::default()),
+            dropout,
+        }
+    }
+}
+
+impl ModuleT for EmbeddingMlp {
+    fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
+        let y = self.hidden.forward(x).dropout(self.dropout, train).relu();
+        let y = self.out.forward(&y);
+        let norm = y.square().sum_dim_intlist([-1i64].as_slice(), true, Kind::Float).sqrt().clamp_min(1e-8);
+        y / norm
+    }
+}
+
+/// A 2-D Gaussian over the normalised image grid: mean `[B, 2]` and Cholesky factor entries `[B, 3]` (a, c, b
+/// of [[a, 0], [c, b]], with a, b > 0).
+pub struct PointPrediction {
+    pub mean: Tensor,
+    pub cholesky: Tensor,
+}
+
+/// Linear -> ReLU -> Linear 5 -> (mean, Cholesky with softplus + 0.03 diagonal).
+#[derive(Debug)]
+pub struct PointHead {
+    hidden: nn::Linear,
+    out: nn::Linear,
+}
+
+impl PointHead {
+    /// A head reading `input`-wide task embeddings.
+    pub fn new(vs: &nn::Path, input: i64, hidden: i64) -> PointHead {
+        PointHead {
+            hidden: nn::linear(vs / "hidden", input, hidden, Default::default()),
+            out: nn::linear(vs / "out", hidden, 5, Default::default()),
+        }
+    }
+
+    /// The prediction for embeddings `[B, input]`.
+    pub fn forward(&self, x: &Tensor) -> PointPrediction {
+        let y = self.out.forward(&self.hidden.forward(x).relu());
+        let mean = y.narrow(1, 0, 2);
+        let a = y.narrow(1, 2, 1).softplus() + 0.03;
+        let c = y.narrow(1, 3, 1);
+        let b = y.narrow(1, 4, 1).softplus() + 0.03;
+        PointPrediction { mean, cholesky: Tensor::cat(&[a, c, b], 1) }
+    }
+}
+
+/// Mean negative log-likelihood of targets `[B, 2]` under the predicted Gaussians.
+pub fn point_nll(p: &PointPrediction, target: &Tensor) -> Tensor {
+    let d = target - &p.mean;
+    let (a, c, b) = (p.cholesky.select(1, 0), p.cholesky.select(1, 1), p.cholesky.select(1, 2));
+    let z1 = d.select(1, 0) / &a;
+    let z2 = (d.select(1, 1) - &c * &z1) / &b;
+    let nll = (z1.square() + z2.square()) * 0.5 + a.log() + b.log() + (2.0 * std::f64::consts::PI).ln();
+    nll.mean(Kind::Float)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spatial_softmax_finds_a_peak() {
+        let x = Tensor::zeros([1, 1, 3, 5], (Kind::Float, tch::Device::Cpu));
+        let _ = x.get(0).get(0).get(2).get(4).fill_(50.0);
+        let s = spatial_softmax(&x);
+        assert!((s.double_value(&[0, 0]) - 1.0).abs() < 1e-4 && (s.double_value(&[0, 1]) - 1.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn point_nll_matches_the_standard_normal_density() {
+        // a = b = 1, c = 0 and mean 0 is the standard normal: NLL = log(2 pi) + |x|^2 / 2.
+        let p = PointPrediction {
+            mean: Tensor::zeros([1, 2], (Kind::Float, tch::Device::Cpu)),
+            cholesky: Tensor::from_slice(&[1.0f32, 0.0, 1.0]).view([1, 3]),
+        };
+        let x = Tensor::from_slice(&[0.3f32, -0.4]).view([1, 2]);
+        let expected = (2.0 * std::f64::consts::PI).ln() + 0.125;
+        assert!((point_nll(&p, &x).double_value(&[]) - expected).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,7 @@
+//! The policy network in libtorch: trunk, attention, embeddings and heads.
+pub mod attention;
+pub mod config;
+pub mod heads;
+pub mod mixture;
+pub mod resnet;
+pub mod transformer;

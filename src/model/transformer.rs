@@ -1,0 +1,142 @@
+//! The paper's policy: a ResNet-18 trunk per frame, positional encoding, causal non-local attention over
+//! [context frames, agent frames], frame and task embeddings, and the action, inverse-dynamics and point heads.
+use super::attention::{AttentionLayer, AttentionSpec, frame_causal_mask, positional_encoding};
+use super::config::ModelConfig;
+use super::heads::{EmbeddingMlp, PointHead, PointPrediction, spatial_softmax};
+use super::mixture::{MixtureHead, MixtureParams, MixtureSpec};
+use super::resnet::ResNet18;
+use crate::sim::action::ACTION_DIM;
+use tch::Tensor;
+use tch::nn::{self, Module, ModuleT};
+
+/// What one forward pass predicts.
+pub struct PolicyOutput {
+    /// Action distribution at every agent frame: `[B, Ta, 8, mixtures]`.
+    pub actions: MixtureParams,
+    /// Inverse-dynamics distribution for each consecutive pair of agent frames: `[B, Ta - 1, 8, mixtures]`.
+    pub inverse: MixtureParams,
+    /// End-effector pixel at the end of the window.
+    pub point: PointPrediction,
+}
+
+/// The transformer policy.
+#[derive(Debug)]
+pub struct TransformerPolicy {
+    config: ModelConfig,
+    trunk: ResNet18,
+    dropout: f64,
+    causal: Vec<AttentionLayer>,
+    task_attention: AttentionLayer,
+    task_conv: nn::Conv<[i64; 3]>,
+    frame_embed: EmbeddingMlp,
+    task_embed: EmbeddingMlp,
+    policy: nn::Linear,
+    inverse: nn::Linear,
+    action_head: MixtureHead,
+    point_head: PointHead,
+}
+
+impl TransformerPolicy {
+    /// Builds the network under `vs` (call `config.validate()` first).
+    pub fn new(vs: &nn::Path, config: &ModelConfig) -> TransformerPolicy {
+        let trunk = ResNet18::new(&(vs / "backbone"), config.backbone_width);
+        let c = trunk.out_channels();
+        let spec = AttentionSpec {
+            channels: c,
+            inner: config.attention_inner,
+            heads: config.attention_heads,
+            temperature: config.attention_temperature.unwrap_or((c as f64).sqrt()),
+            dropout: config.dropout,
+        };
+        let causal = (0..config.attention_layers).map(|i| AttentionLayer::new(&(vs / "attention" / i), spec)).collect();
+        let d = nn::ConvConfig::default();
+        let conv_config = nn::ConvConfigND {
+            stride: [1, 1, 1],
+            padding: [1, 0, 0],
+            dilation: [1, 1, 1],
+            groups: 1,
+            bias: true,
+            ws_init: d.ws_init,
+            bs_init: d.bs_init,
+            padding_mode: d.padding_mode,
+        };
+        let (hidden, latent) = (config.embed_hidden, config.latent);
+        TransformerPolicy {
+            config: config.clone(),
+            trunk,
+            dropout: config.dropout,
+            causal,
+            task_attention: AttentionLayer::new(&(vs / "task_attention"), spec),
+            task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv_config),
+            frame_embed: EmbeddingMlp::new(&(vs / "frame_embed"), 2 * c, hidden, latent, config.dropout),
+            task_embed: EmbeddingMlp::new(&(vs / "task_embed"), 2 * c, hidden, latent, config.dropout),
+            policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
+            inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
+            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, Self::mixture_spec(config)),
+            point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
+        }
+    }
+
+    /// The action distribution's settings for `config`.
+    pub fn mixture_spec(config: &ModelConfig) -> MixtureSpec {
+        MixtureSpec {
+            dims: ACTION_DIM as i64,
+            mixtures: config.mixtures,
+            bins: config.bins,
+            log_scale_min: config.log_scale_min,
+        }
+    }
+
+    /// The settings this network was built with.
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// Trunk features `[B, T, C, h, w]` of normalised images `[B, T, 3, H, W]`.
+    pub fn features(&self, images: &Tensor, train: bool) -> Tensor {
+        let s = images.size();
+        let f = self.trunk.forward_t(&images.view([s[0] * s[1], s[2], s[3], s[4]]), train);
+        let fs = f.size();
+        f.view([s[0], s[1], fs[1], fs[2], fs[3]])
+    }
+
+    /// Predictions for `context` `[B, Tc, 3, H, W]` and an agent window `agent` `[B, Ta, 3, H, W]`.
+    /// Agent frame t's outputs depend only on the context and agent frames 0..=t.
+    pub fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
+        let tc = context.size()[1];
+        let ta = agent.size()[1];
+        let feats = self.features(&Tensor::cat(&[context, agent], 1), train);
+        let (b, t, c, h, w) = (feats.size()[0], tc + ta, feats.size()[2], feats.size()[3], feats.size()[4]);
+        let hw = h * w;
+        let device = feats.device();
+        // [B, T, C, h, w] -> tokens [B, T*h*w, C]
+        let mut x = feats.permute([0, 1, 3, 4, 2]).reshape([b, t * hw, c]);
+        x = (x + positional_encoding(t * hw, c, device).unsqueeze(0)).dropout(self.dropout, train);
+        let mask = frame_causal_mask(t, hw, tc, device);
+        for layer in &self.causal {
+            x = layer.forward(&x, Some(&mask), train);
+        }
+        let frames = x.view([b, t, h, w, c]).permute([0, 1, 4, 2, 3]);
+
+        // Frame embeddings of the agent frames.
+        let agent_feats = frames.narrow(1, tc, ta).reshape([b * ta, c, h, w]);
+        let e = self.frame_embed.forward_t(&spatial_softmax(&agent_feats), train).view([b, ta, -1]);
+
+        // Task embedding from the context and the first agent frame.
+        let task_tokens = x.narrow(1, 0, (tc + 1) * hw);
+        let task_tokens = self.task_attention.forward(&task_tokens, None, train);
+        let task_frames = task_tokens.view([b, tc + 1, h, w, c]).permute([0, 4, 1, 2, 3]);
+        let pooled = task_frames.apply(&self.task_conv).mean_dim([2i64].as_slice(), false, tch::Kind::Float);
+        let task = self.task_embed.forward_t(&spatial_softmax(&pooled), train);
+
+        let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
+        let hidden = self.policy.forward(&Tensor::cat(&[&task_per_frame, &e], -1)).relu();
+        let pairs = Tensor::cat(&[e.narrow(1, 0, ta - 1), e.narrow(1, 1, ta - 1)], -1);
+        let inv_hidden = self.inverse.forward(&pairs).relu();
+        PolicyOutput {
+            actions: self.action_head.forward(&hidden),
+            inverse: self.action_head.forward(&inv_hidden),
+            point: self.point_head.forward(&task),
+        }
+    }
+}

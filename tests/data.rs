@@ -1,0 +1,92 @@
+//! The dataset format and collection: round trips, determinism across worker counts, atomic output.
+use oneshot_lab::data::collect::{CollectConfig, collect, staging_path};
+use oneshot_lab::data::manifest::Manifest;
+use oneshot_lab::data::trajectory::Trajectory;
+use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::env::WorldConfig;
+use oneshot_lab::sim::robot::Robot;
+use std::path::PathBuf;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("oneshot-test-data-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn tiny(robot: Robot, tasks: Vec<usize>, per_task: usize) -> CollectConfig {
+    let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
+    CollectConfig { tasks, per_task, world, ..CollectConfig::paper(robot) }
+}
+
+#[test]
+fn collection_is_byte_identical_for_any_worker_count_and_round_trips() {
+    let dir = scratch("determinism");
+    let config = tiny(Robot::Sawyer, vec![3, 14], 2);
+    let one = collect(&config, &dir.join("one"), 1, false).unwrap();
+    let two = collect(&config, &dir.join("two"), 3, false).unwrap();
+    assert_eq!(one, two);
+    for e in &one.trajectories {
+        let a = std::fs::read(dir.join("one").join(&e.file)).unwrap();
+        let b = std::fs::read(dir.join("two").join(&e.file)).unwrap();
+        assert_eq!(a, b, "{}", e.file);
+    }
+    Manifest::load(&dir.join("one")).unwrap().verify(&dir.join("one")).unwrap();
+
+    let e = &one.trajectories[0];
+    let traj = Trajectory::load(&dir.join("one").join(&e.file)).unwrap();
+    assert_eq!(traj.len(), e.steps);
+    assert_eq!(traj.actions.len(), e.steps - 1);
+    assert_eq!((traj.meta.task, traj.meta.instance_seed), (3, e.instance_seed));
+    assert!(traj.meta.stages.placed && traj.stages.last().unwrap()[2] == 1);
+    assert_eq!(traj.frame_rgb(0).unwrap().len(), 32 * 40 * 3);
+    assert_eq!(Trajectory::from_bytes(&traj.to_bytes().unwrap()).unwrap(), traj);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn demonstrator_and_agent_collections_use_different_layouts() {
+    let sawyer = tiny(Robot::Sawyer, vec![0], 1);
+    let panda = tiny(Robot::Panda, vec![0], 1);
+    assert_ne!(sawyer.instance_seed(0, 0, 0), panda.instance_seed(0, 0, 0));
+}
+
+#[test]
+fn existing_output_is_refused_and_stale_staging_is_replaced() {
+    let dir = scratch("atomic");
+    let out = dir.join("set");
+    std::fs::create_dir_all(&out).unwrap();
+    let err = collect(&tiny(Robot::Panda, vec![0], 1), &out, 1, false).unwrap_err();
+    assert!(err.to_string().contains("already exists"), "{err}");
+    std::fs::remove_dir_all(&out).unwrap();
+
+    // An interrupted run leaves only the hidden staging folder, which is not a collection.
+    let staging = staging_path(&out).unwrap();
+    std::fs::create_dir_all(staging.join("trajectories")).unwrap();
+    assert!(Manifest::load(&out).is_err() && Manifest::load(&staging).is_err());
+    collect(&tiny(Robot::Panda, vec![0], 1), &out, 1, false).unwrap();
+    assert!(!staging.exists());
+    assert_eq!(Manifest::load(&out).unwrap().trajectories.len(), 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_corrupted_file_fails_verification() {
+    let dir = scratch("verify");
+    let out = dir.join("set");
+    let manifest = collect(&tiny(Robot::Panda, vec![9], 1), &out, 1, false).unwrap();
+    let path = out.join(&manifest.trajectories[0].file);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let n = bytes.len();
+    bytes[n - 10] ^= 0xff;
+    std::fs::write(&path, bytes).unwrap();
+    let err = manifest.verify(&out).unwrap_err();
+    assert!(err.to_string().contains("task09_0000"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn out_of_range_task_is_an_error_naming_it() {
+    let err = tiny(Robot::Panda, vec![0, 16], 1).validate().unwrap_err();
+    assert!(format!("{err:#}").contains("16"), "{err:#}");
+}
