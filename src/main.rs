@@ -7,6 +7,7 @@ use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::scene::Visuals;
+use oneshot_lab::train::{TrainFile, TrainRun, train};
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -62,6 +63,27 @@ enum Command {
         jpeg_quality: u8,
         #[command(flatten)]
         frames: FrameArgs,
+    },
+    /// Trains a policy on a demonstrator and an agent collection (resumes from the latest checkpoint in OUT).
+    Train {
+        /// Demonstrator (Sawyer) collection folder.
+        #[arg(long)]
+        demos: PathBuf,
+        /// Agent (Panda) collection folder.
+        #[arg(long)]
+        agents: PathBuf,
+        /// Training folder: checkpoints, loss curve, final weights.
+        #[arg(long)]
+        out: PathBuf,
+        /// TOML file with optional [model] and [train] tables (paper defaults otherwise).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long)]
+        steps: Option<u64>,
+        #[arg(long)]
+        batch_size: Option<usize>,
+        #[arg(long)]
+        device: Option<String>,
     },
     /// A PNG of first frames of several instances for both robots.
     ContactSheet {
@@ -128,6 +150,26 @@ fn run(cli: Cli) -> Result<()> {
                 manifest.trajectories.len(),
                 manifest.total_steps(),
                 retries,
+                out.display()
+            );
+        }
+        Command::Train { demos, agents, out, config, steps, batch_size, device } => {
+            let mut file = match config {
+                Some(path) => TrainFile::load(&path)?,
+                None => TrainFile::default(),
+            };
+            file.train.steps = steps.unwrap_or(file.train.steps);
+            file.train.batch_size = batch_size.unwrap_or(file.train.batch_size);
+            file.train.device = device.unwrap_or(file.train.device);
+            let run = TrainRun { demo_dir: &demos, agent_dir: &agents, out: &out, progress: true };
+            let s = train(&file.model, &file.train, &run)?;
+            println!(
+                "trained {} steps in {:.0} s ({} parameters): validation BC {:.3} -> {:.3}; weights in {}",
+                s.steps,
+                s.seconds,
+                s.parameters,
+                s.first_val_bc,
+                s.final_val_bc,
                 out.display()
             );
         }

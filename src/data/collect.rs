@@ -171,9 +171,7 @@ fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -
 pub fn staging_path(out: &Path) -> Result<PathBuf> {
     let name = out.file_name().with_context(|| format!("output path {} has no folder name", out.display()))?;
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    if !parent.is_dir() {
-        bail!("parent folder {} of the output does not exist", parent.display());
-    }
+    std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     Ok(parent.join(format!(".{}.partial", name.to_string_lossy())))
 }
 

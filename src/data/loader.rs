@@ -1,0 +1,132 @@
+//! Batches for training, built ahead of the training step: samples are decoded and augmented in parallel (rayon)
+//! on a producer thread that keeps a bounded queue of ready batches.
+use super::pairs::{PairDataset, Sample, Split};
+use crate::model::config::ModelConfig;
+use crate::seeds::derive_seed;
+use anyhow::Result;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::thread::JoinHandle;
+use tch::{Device, Tensor};
+
+/// A batch of samples as flat host arrays.
+pub struct Batch {
+    pub size: usize,
+    pub context: Vec<f32>,
+    pub agent: Vec<f32>,
+    pub actions: Vec<f32>,
+    pub points: Vec<f32>,
+}
+
+/// A batch on a device: `context` `[B, Tc, 3, H, W]`, `agent` `[B, Ta, 3, H, W]`, `actions` `[B, Ta - 1, 8]`,
+/// `points` `[B, 2]`.
+pub struct DeviceBatch {
+    pub context: Tensor,
+    pub agent: Tensor,
+    pub actions: Tensor,
+    pub points: Tensor,
+}
+
+impl Batch {
+    /// Stacks samples.
+    pub fn from_samples(samples: Vec<Sample>) -> Batch {
+        let mut b = Batch { size: samples.len(), context: vec![], agent: vec![], actions: vec![], points: vec![] };
+        for s in samples {
+            b.context.extend(s.context);
+            b.agent.extend(s.agent);
+            b.actions.extend(s.actions);
+            b.points.extend(s.point);
+        }
+        b
+    }
+
+    /// Copies the batch to `device` with the shapes `model` and frames of `height x width` imply.
+    pub fn to_device(&self, model: &ModelConfig, height: usize, width: usize, device: Device) -> DeviceBatch {
+        let (b, h, w) = (self.size as i64, height as i64, width as i64);
+        let (tc, ta) = (model.context_len() as i64, model.agent_frames as i64);
+        let t = |v: &[f32], shape: &[i64]| Tensor::from_slice(v).view(shape).to_device(device);
+        DeviceBatch {
+            context: t(&self.context, &[b, tc, 3, h, w]),
+            agent: t(&self.agent, &[b, ta, 3, h, w]),
+            actions: t(&self.actions, &[b, ta - 1, 8]),
+            points: t(&self.points, &[b, 2]),
+        }
+    }
+}
+
+/// Builds batch `step` of `split` deterministically from `seed` (each sample has its own derived generator).
+pub fn build_batch(
+    data: &PairDataset,
+    split: Split,
+    model: &ModelConfig,
+    batch_size: usize,
+    seed: u64,
+    step: u64,
+    augment: bool,
+) -> Result<Batch> {
+    let domain = match split {
+        Split::Train => "train-batch",
+        Split::Val => "val-batch",
+    };
+    let samples = (0..batch_size)
+        .into_par_iter()
+        .map(|i| {
+            let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(domain, &[seed, step, i as u64]));
+            data.sample(&mut rng, split, model, augment)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Batch::from_samples(samples))
+}
+
+/// Training batches for steps `start..`, produced ahead on a background thread.
+pub struct Prefetcher {
+    receiver: Receiver<Result<Batch>>,
+    handle: Option<JoinHandle<()>>,
+}
+
+/// What the producer thread needs.
+pub struct PrefetchSpec {
+    pub model: ModelConfig,
+    pub batch_size: usize,
+    pub seed: u64,
+    pub start: u64,
+    pub augment: bool,
+    /// Ready batches kept queued.
+    pub depth: usize,
+}
+
+impl Prefetcher {
+    /// Starts producing.
+    pub fn start(data: Arc<PairDataset>, spec: PrefetchSpec) -> Prefetcher {
+        let (sender, receiver): (SyncSender<Result<Batch>>, _) = sync_channel(spec.depth.max(1));
+        let handle = std::thread::spawn(move || {
+            for step in spec.start.. {
+                let batch =
+                    build_batch(&data, Split::Train, &spec.model, spec.batch_size, spec.seed, step, spec.augment);
+                if sender.send(batch).is_err() {
+                    return;
+                }
+            }
+        });
+        Prefetcher { receiver, handle: Some(handle) }
+    }
+
+    /// The next batch.
+    pub fn next_batch(&self) -> Result<Batch> {
+        self.receiver.recv().map_err(|_| anyhow::anyhow!("batch producer stopped"))?
+    }
+}
+
+impl Drop for Prefetcher {
+    fn drop(&mut self) {
+        // Unblock the producer by draining once, then let it see the closed channel.
+        while self.receiver.try_recv().is_ok() {}
+        if let Some(h) = self.handle.take() {
+            drop(std::mem::replace(&mut self.receiver, sync_channel(1).1));
+            let _ = h.join();
+        }
+    }
+}

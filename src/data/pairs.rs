@@ -1,0 +1,270 @@
+//! Training pairs: a demonstrator video and an agent trajectory of the same task, in the same split.
+//! A sample is the video's context frames, a window of agent frames, its actions and the point target.
+use super::augment::AugmentDraw;
+use super::manifest::Manifest;
+use super::trajectory::Trajectory;
+use crate::model::config::{ContextMode, ModelConfig};
+use crate::sim::action::Action;
+use crate::sim::robot::Robot;
+use crate::sim::task::NUM_TASKS;
+use anyhow::{Context, Result, bail};
+use rand::Rng;
+use rayon::prelude::*;
+use std::path::Path;
+
+/// Probability that an agent window is forced to the start or the end of its trajectory (half each).
+const FORCE_ENDS: f64 = 0.4;
+
+/// Training or validation trajectories.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Split {
+    Train,
+    Val,
+}
+
+/// Demonstrator and agent trajectories, split by trajectory and grouped by task.
+pub struct PairDataset {
+    demos: Vec<Trajectory>,
+    agents: Vec<Trajectory>,
+    /// `[split][task]` -> indices into `demos` / `agents`.
+    demo_index: [Vec<Vec<usize>>; 2],
+    agent_index: [Vec<Vec<usize>>; 2],
+    pub height: usize,
+    pub width: usize,
+}
+
+/// Loads every trajectory of a collection folder (checking digests) in parallel.
+fn load_collection(dir: &Path, robot: Robot) -> Result<(Manifest, Vec<Trajectory>)> {
+    let manifest = Manifest::load(dir)?;
+    if manifest.config.robot != robot {
+        bail!("{} holds {} trajectories, expected {robot}", dir.display(), manifest.config.robot);
+    }
+    let trajs = manifest
+        .trajectories
+        .par_iter()
+        .map(|e| {
+            let path = dir.join(&e.file);
+            let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+            if blake3::hash(&bytes).to_hex().as_str() != e.blake3 {
+                bail!("{} does not match its manifest digest", path.display());
+            }
+            Trajectory::from_bytes(&bytes).with_context(|| format!("parsing {}", path.display()))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok((manifest, trajs))
+}
+
+/// Split of slot `index` among `per_task` slots: the last tenth (at least one) is validation.
+fn split_of(index: usize, per_task: usize, val_fraction: f64) -> Split {
+    let val = ((per_task as f64 * val_fraction).round() as usize).max(1);
+    if index + val >= per_task { Split::Val } else { Split::Train }
+}
+
+impl PairDataset {
+    /// Opens a demonstrator collection and an agent collection; `val_fraction` of each task's slots validate.
+    pub fn open(demo_dir: &Path, agent_dir: &Path, val_fraction: f64) -> Result<PairDataset> {
+        let (dm, demos) = load_collection(demo_dir, Robot::Sawyer)?;
+        let (am, agents) = load_collection(agent_dir, Robot::Panda)?;
+        let (di, ai) = (dm.config.world.image, am.config.world.image);
+        if di != ai {
+            bail!("frame sizes differ: demonstrator {}x{}, agent {}x{}", di.height, di.width, ai.height, ai.width);
+        }
+        for (m, who) in [(&dm, "demonstrator"), (&am, "agent")] {
+            if m.config.per_task < 2 {
+                bail!("the {who} collection has {} trajectory per task; a train/val split needs 2", m.config.per_task);
+            }
+        }
+        let index = |m: &Manifest| -> [Vec<Vec<usize>>; 2] {
+            let mut idx = [vec![Vec::new(); NUM_TASKS], vec![Vec::new(); NUM_TASKS]];
+            for (k, e) in m.trajectories.iter().enumerate() {
+                let s = split_of(e.index, m.config.per_task, val_fraction) as usize;
+                idx[s][e.task].push(k);
+            }
+            idx
+        };
+        let (demo_index, agent_index) = (index(&dm), index(&am));
+        for t in 0..NUM_TASKS {
+            for s in 0..2 {
+                if demo_index[s][t].is_empty() != agent_index[s][t].is_empty() {
+                    bail!("task {t} has trajectories for only one of the two robots");
+                }
+            }
+        }
+        Ok(PairDataset { demos, agents, demo_index, agent_index, height: di.height, width: di.width })
+    }
+
+    /// Number of (demonstrator video, agent trajectory) pairs in `split`.
+    pub fn pairs(&self, split: Split) -> usize {
+        let s = split as usize;
+        (0..NUM_TASKS).map(|t| self.demo_index[s][t].len() * self.agent_index[s][t].len()).sum()
+    }
+
+    /// The shortest trajectory of either robot.
+    pub fn shortest(&self) -> usize {
+        self.demos.iter().chain(&self.agents).map(Trajectory::len).min().unwrap_or(0)
+    }
+
+    /// Checks that the model's context and window fit every trajectory.
+    pub fn check_fits(&self, model: &ModelConfig) -> Result<()> {
+        let shortest = self.shortest();
+        if model.context_len() > shortest {
+            bail!(
+                "model.context_frames = {} exceeds the shortest demonstrator video ({shortest} frames)",
+                model.context_len()
+            );
+        }
+        if model.agent_frames > shortest {
+            bail!(
+                "model.agent_frames = {} exceeds the shortest agent trajectory ({shortest} frames)",
+                model.agent_frames
+            );
+        }
+        Ok(())
+    }
+
+    /// Draws one sample of `split`: a uniformly random agent trajectory and demonstrator video of its task.
+    pub fn sample<R: Rng>(&self, rng: &mut R, split: Split, model: &ModelConfig, augment: bool) -> Result<Sample> {
+        let s = split as usize;
+        let tasks: Vec<usize> = (0..NUM_TASKS).filter(|&t| !self.agent_index[s][t].is_empty()).collect();
+        if tasks.is_empty() {
+            bail!("the {split:?} split is empty");
+        }
+        // Uniform over agent trajectories: weight tasks by their count.
+        let total: usize = tasks.iter().map(|&t| self.agent_index[s][t].len()).sum();
+        let mut pick = rng.random_range(0..total);
+        let task = *tasks
+            .iter()
+            .find(|&&t| {
+                let n = self.agent_index[s][t].len();
+                if pick < n {
+                    true
+                } else {
+                    pick -= n;
+                    false
+                }
+            })
+            .expect("pick is below the total");
+        let agent = &self.agents[self.agent_index[s][task][pick]];
+        let demo_list = &self.demo_index[s][task];
+        let demo = &self.demos[demo_list[rng.random_range(0..demo_list.len())]];
+
+        let (h, w) = (self.height, self.width);
+        let frame_len = 3 * h * w;
+        let context_idx = context_indices(rng, demo.len(), model);
+        let demo_draw = if augment { AugmentDraw::sample(rng, h, w) } else { AugmentDraw::identity(h, w) };
+        let mut context = vec![0.0f32; context_idx.len() * frame_len];
+        for (k, &t) in context_idx.iter().enumerate() {
+            demo_draw.apply(&demo.frame_rgb(t)?, h, w, &mut context[k * frame_len..(k + 1) * frame_len]);
+        }
+
+        let start = window_start(rng, agent.len(), model.agent_frames);
+        let mut frames = vec![0.0f32; model.agent_frames * frame_len];
+        for k in 0..model.agent_frames {
+            let draw = if augment { AugmentDraw::sample(rng, h, w) } else { AugmentDraw::identity(h, w) };
+            draw.apply(&agent.frame_rgb(start + k)?, h, w, &mut frames[k * frame_len..(k + 1) * frame_len]);
+        }
+        let actions = (start..start + model.agent_frames - 1)
+            .flat_map(|t| Action(agent.actions[t].map(f64::from)).normalized())
+            .collect();
+        let [col, row] = agent.eef_pixel[start + model.agent_frames - 1];
+        let point = [2.0 * col / w as f32 - 1.0, 2.0 * row / h as f32 - 1.0];
+        Ok(Sample { task, context, agent: frames, actions, point })
+    }
+}
+
+/// One training sample in planar, normalised form.
+pub struct Sample {
+    pub task: usize,
+    /// `[Tc, 3, H, W]` flattened.
+    pub context: Vec<f32>,
+    /// `[Ta, 3, H, W]` flattened.
+    pub agent: Vec<f32>,
+    /// `[Ta - 1, 8]` normalised actions, flattened.
+    pub actions: Vec<f32>,
+    /// End-effector pixel at the window's last frame, on the [-1, 1] grid (x = column, y = row).
+    pub point: [f32; 2],
+}
+
+/// Demonstrator frames to show for a video of `len` frames.
+pub fn context_indices<R: Rng>(rng: &mut R, len: usize, model: &ModelConfig) -> Vec<usize> {
+    match model.context {
+        ContextMode::Final => vec![len - 1],
+        ContextMode::FirstLast => vec![0, len - 1],
+        ContextMode::Spread => {
+            let n = model.context_frames;
+            (0..n)
+                .map(|i| match i {
+                    0 => 0,
+                    _ if i == n - 1 => len - 1,
+                    _ => rng.random_range(i * len / n..((i + 1) * len / n).max(i * len / n + 1)),
+                })
+                .collect()
+        }
+    }
+}
+
+/// The same frames without randomness (evaluation): segment midpoints, first and last forced.
+pub fn context_indices_fixed(len: usize, model: &ModelConfig) -> Vec<usize> {
+    match model.context {
+        ContextMode::Final => vec![len - 1],
+        ContextMode::FirstLast => vec![0, len - 1],
+        ContextMode::Spread => {
+            let n = model.context_frames;
+            (0..n)
+                .map(|i| match i {
+                    0 => 0,
+                    _ if i == n - 1 => len - 1,
+                    _ => (2 * i + 1) * len / (2 * n),
+                })
+                .collect()
+        }
+    }
+}
+
+/// First frame of an agent window of `frames` in a trajectory of `len`.
+fn window_start<R: Rng>(rng: &mut R, len: usize, frames: usize) -> usize {
+    let last = len - frames;
+    let u: f64 = rng.random();
+    if u < FORCE_ENDS / 2.0 {
+        0
+    } else if u < FORCE_ENDS {
+        last
+    } else {
+        rng.random_range(0..=last)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn spread_context_forces_ends_and_covers_each_segment() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let model = ModelConfig::default();
+        for _ in 0..100 {
+            let idx = context_indices(&mut rng, 50, &model);
+            assert_eq!((idx[0], idx[3]), (0, 49));
+            assert!((12..25).contains(&idx[1]) && (25..37).contains(&idx[2]), "{idx:?}");
+        }
+        assert_eq!(context_indices_fixed(50, &model), vec![0, 18, 31, 49]);
+    }
+
+    #[test]
+    fn windows_hit_both_ends_about_a_fifth_of_the_time_each() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        let starts: Vec<usize> = (0..10_000).map(|_| window_start(&mut rng, 60, 7)).collect();
+        let share = |v: usize| starts.iter().filter(|&&s| s == v).count() as f64 / starts.len() as f64;
+        assert!((share(0) - 0.2).abs() < 0.02 && (share(53) - 0.2).abs() < 0.02);
+        assert!(starts.iter().all(|&s| s <= 53));
+    }
+
+    #[test]
+    fn validation_takes_the_last_tenth_of_slots() {
+        let val: Vec<usize> = (0..20).filter(|&i| split_of(i, 20, 0.1) == Split::Val).collect();
+        assert_eq!(val, vec![18, 19]);
+        assert_eq!(split_of(1, 2, 0.1), Split::Val);
+        assert_eq!(split_of(0, 2, 0.1), Split::Train);
+    }
+}

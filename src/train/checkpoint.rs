@@ -1,0 +1,89 @@
+//! Checkpoints: the var store as safetensors (parameter names as in the network, loadable from Python), written
+//! to a temporary name and renamed, and loaded only after every name and shape is checked.
+use anyhow::{Context, Result, bail};
+use std::path::{Path, PathBuf};
+use tch::{Tensor, nn};
+
+/// Saves all variables of `vs` to `path` atomically.
+pub fn save(vs: &nn::VarStore, path: &Path) -> Result<()> {
+    let tmp = path.with_extension("partial.safetensors");
+    vs.save(&tmp).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+}
+
+/// Loads `path` into `vs`; errors name the file and the first parameter that does not fit.
+pub fn load(vs: &mut nn::VarStore, path: &Path) -> Result<()> {
+    let stored = Tensor::read_safetensors(path).with_context(|| format!("reading checkpoint {}", path.display()))?;
+    let mut expected = vs.variables();
+    for (name, tensor) in &stored {
+        let Some(var) = expected.remove(name) else {
+            bail!("checkpoint {} has parameter `{name}`, which this architecture lacks", path.display());
+        };
+        if var.size() != tensor.size() {
+            bail!(
+                "checkpoint {} does not fit this architecture: `{name}` is {:?}, the model expects {:?}",
+                path.display(),
+                tensor.size(),
+                var.size()
+            );
+        }
+    }
+    if let Some(name) = expected.keys().min() {
+        bail!("checkpoint {} lacks parameter `{name}` of this architecture", path.display());
+    }
+    let mut vars = vs.variables();
+    tch::no_grad(|| {
+        for (name, tensor) in &stored {
+            vars.get_mut(name).expect("checked above").copy_(tensor);
+        }
+    });
+    Ok(())
+}
+
+/// Copies matching `backbone.*` parameters from a torchvision-named ResNet-18 safetensors file.
+pub fn load_backbone(vs: &mut nn::VarStore, path: &Path) -> Result<usize> {
+    let stored =
+        Tensor::read_safetensors(path).with_context(|| format!("reading pretrained weights {}", path.display()))?;
+    let mut vars = vs.variables();
+    let mut copied = 0;
+    tch::no_grad(|| -> Result<()> {
+        for (name, tensor) in &stored {
+            if let Some(var) = vars.get_mut(&format!("backbone.{name}")) {
+                if var.size() != tensor.size() {
+                    bail!("{}: `{name}` is {:?}, the backbone expects {:?}", path.display(), tensor.size(), var.size());
+                }
+                var.copy_(tensor);
+                copied += 1;
+            }
+        }
+        Ok(())
+    })?;
+    if copied == 0 {
+        bail!("{} holds no ResNet-18 parameter (expected names like `layer1.0.conv1.weight`)", path.display());
+    }
+    Ok(copied)
+}
+
+/// The checkpoint file of `step` in `dir`.
+pub fn path_for(dir: &Path, step: u64) -> PathBuf {
+    dir.join(format!("step_{step:08}.safetensors"))
+}
+
+/// The latest complete checkpoint in `dir` and its step.
+pub fn latest(dir: &Path) -> Result<Option<(u64, PathBuf)>> {
+    if !dir.exists() {
+        return Ok(None);
+    }
+    let mut best = None;
+    for entry in std::fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))? {
+        let path = entry?.path();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let step = name.strip_prefix("step_").and_then(|s| s.strip_suffix(".safetensors")).and_then(|s| s.parse().ok());
+        if let Some(step) = step {
+            if best.as_ref().is_none_or(|(b, _)| step > *b) {
+                best = Some((step, path));
+            }
+        }
+    }
+    Ok(best)
+}

@@ -1,0 +1,110 @@
+//! Training settings, with the paper's values as defaults.
+use anyhow::{Result, bail};
+use serde::{Deserialize, Serialize};
+use tch::Device;
+
+/// Weights of the three losses; 0 switches a loss off (the loss ablations).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LossWeights {
+    pub bc: f64,
+    pub inverse: f64,
+    pub point: f64,
+}
+
+impl Default for LossWeights {
+    fn default() -> Self {
+        LossWeights { bc: 1.0, inverse: 1.0, point: 0.1 }
+    }
+}
+
+/// How to train.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    pub steps: u64,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub seed: u64,
+    /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N`.
+    pub device: String,
+    /// Steps between validation passes (and loss-curve points).
+    pub val_interval: u64,
+    /// Fixed validation batches per pass.
+    pub val_batches: u64,
+    /// Steps between checkpoints.
+    pub checkpoint_interval: u64,
+    /// Fraction of each task's trajectories held out for validation.
+    pub val_fraction: f64,
+    /// Image augmentation of training samples.
+    pub augment: bool,
+    pub loss: LossWeights,
+    /// Batches prepared ahead of the training step.
+    pub prefetch: usize,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            steps: 60_000,
+            batch_size: 30,
+            lr: 5e-4,
+            seed: 0,
+            device: "auto".into(),
+            val_interval: 1000,
+            val_batches: 4,
+            checkpoint_interval: 2000,
+            val_fraction: 0.1,
+            augment: true,
+            loss: LossWeights::default(),
+            prefetch: 4,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        if self.steps == 0 || self.batch_size == 0 {
+            bail!("train.steps and train.batch_size must be at least 1");
+        }
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            bail!("train.lr = {} must be positive", self.lr);
+        }
+        if self.val_interval == 0 || self.val_batches == 0 || self.checkpoint_interval == 0 {
+            bail!("train.val_interval, train.val_batches and train.checkpoint_interval must be at least 1");
+        }
+        if !(self.val_fraction > 0.0 && self.val_fraction < 1.0) {
+            bail!("train.val_fraction = {} out of range (0, 1)", self.val_fraction);
+        }
+        let w = &self.loss;
+        for (key, v) in [("bc", w.bc), ("inverse", w.inverse), ("point", w.point)] {
+            if !(v >= 0.0 && v.is_finite()) {
+                bail!("train.loss.{key} = {v} must be a non-negative number");
+            }
+        }
+        if w.bc + w.inverse + w.point == 0.0 {
+            bail!("train.loss: every loss weight is 0");
+        }
+        self.device()?;
+        Ok(())
+    }
+
+    /// The torch device named by `device`.
+    pub fn device(&self) -> Result<Device> {
+        parse_device(&self.device)
+    }
+}
+
+/// Parses `auto`, `cpu`, `cuda` or `cuda:N`.
+pub fn parse_device(name: &str) -> Result<Device> {
+    Ok(match name {
+        "auto" => Device::cuda_if_available(),
+        "cpu" => Device::Cpu,
+        "cuda" => Device::Cuda(0),
+        _ => match name.strip_prefix("cuda:").and_then(|n| n.parse().ok()) {
+            Some(n) => Device::Cuda(n),
+            None => bail!("device = {name:?}: expected auto, cpu, cuda or cuda:N"),
+        },
+    })
+}

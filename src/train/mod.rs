@@ -1,0 +1,244 @@
+//! Training the policy: Adam on BC + inverse-dynamics + point losses, validation at fixed intervals,
+//! checkpoints with resume, and a loss curve.
+pub mod checkpoint;
+pub mod config;
+pub mod curve;
+
+use crate::data::loader::{Batch, DeviceBatch, PrefetchSpec, Prefetcher, build_batch};
+use crate::data::pairs::{PairDataset, Split};
+use crate::model::config::ModelConfig;
+use crate::model::heads::point_nll;
+use crate::model::mixture::mixture_nll;
+use crate::model::transformer::TransformerPolicy;
+use crate::seeds::derive_seed;
+use anyhow::{Context, Result};
+use config::{LossWeights, TrainConfig};
+use curve::CurvePoint;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::sync::Arc;
+use tch::nn::{self, OptimizerConfig};
+use tch::{Kind, Tensor};
+
+/// File names inside a training folder.
+pub const FINAL_WEIGHTS: &str = "model.safetensors";
+pub const FINAL_INFO: &str = "model.json";
+pub const CURVE_FILE: &str = "curve.jsonl";
+pub const CHECKPOINT_DIR: &str = "checkpoints";
+
+/// The three losses of one batch.
+pub struct Losses {
+    pub bc: Tensor,
+    pub inverse: Tensor,
+    pub point: Tensor,
+}
+
+impl Losses {
+    /// The weighted sum that is optimised.
+    pub fn total(&self, w: &LossWeights) -> Tensor {
+        &self.bc * w.bc + &self.inverse * w.inverse + &self.point * w.point
+    }
+}
+
+/// Computes all three losses of `policy` on a batch.
+pub fn losses(policy: &TransformerPolicy, batch: &DeviceBatch, train: bool) -> Losses {
+    let out = policy.forward_t(&batch.context, &batch.agent, train);
+    let spec = TransformerPolicy::mixture_spec(policy.config());
+    let steps = batch.actions.size()[1];
+    let narrow = |p: &crate::model::mixture::MixtureParams| crate::model::mixture::MixtureParams {
+        means: p.means.narrow(1, 0, steps),
+        log_scales: p.log_scales.narrow(1, 0, steps),
+        logits: p.logits.narrow(1, 0, steps),
+    };
+    Losses {
+        bc: mixture_nll(&narrow(&out.actions), &batch.actions, spec),
+        inverse: mixture_nll(&out.inverse, &batch.actions, spec),
+        point: point_nll(&out.point, &batch.points),
+    }
+}
+
+/// What a finished training run reports (also written to `model.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrainSummary {
+    pub model: ModelConfig,
+    pub train: TrainConfig,
+    pub steps: u64,
+    pub resumed_from: Option<u64>,
+    pub first_val_bc: f64,
+    pub final_val_bc: f64,
+    pub seconds: f64,
+    pub parameters: i64,
+}
+
+/// Builds a policy with fresh weights (and the optional pretrained trunk) on `device`.
+pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::VarStore, TransformerPolicy)> {
+    model.validate()?;
+    let mut vs = nn::VarStore::new(device);
+    let policy = TransformerPolicy::new(&vs.root(), model);
+    if let Some(path) = &model.pretrained_backbone {
+        checkpoint::load_backbone(&mut vs, Path::new(path)).context("model.pretrained_backbone")?;
+    }
+    Ok((vs, policy))
+}
+
+/// Loads a trained policy from a training folder (or a checkpoint file) for inference.
+pub fn load_policy(path: &Path, model: &ModelConfig, device: tch::Device) -> Result<(nn::VarStore, TransformerPolicy)> {
+    let file = if path.is_dir() { path.join(FINAL_WEIGHTS) } else { path.to_path_buf() };
+    let model = ModelConfig { pretrained_backbone: None, ..model.clone() };
+    let (mut vs, policy) = build_policy(&model, device)?;
+    checkpoint::load(&mut vs, &file)?;
+    Ok((vs, policy))
+}
+
+fn mean_losses(policy: &TransformerPolicy, batches: &[DeviceBatch], w: &LossWeights, step: u64) -> CurvePoint {
+    let n = batches.len() as f64;
+    let (mut bc, mut inv, mut pnt, mut total) = (0.0, 0.0, 0.0, 0.0);
+    tch::no_grad(|| {
+        for b in batches {
+            let l = losses(policy, b, false);
+            bc += l.bc.double_value(&[]) / n;
+            inv += l.inverse.double_value(&[]) / n;
+            pnt += l.point.double_value(&[]) / n;
+            total += l.total(w).double_value(&[]) / n;
+        }
+    });
+    CurvePoint { step, split: "val".into(), bc, inverse: inv, point: pnt, total }
+}
+
+/// Options of a training run that are not part of its identity.
+pub struct TrainRun<'a> {
+    pub demo_dir: &'a Path,
+    pub agent_dir: &'a Path,
+    pub out: &'a Path,
+    pub progress: bool,
+}
+
+/// Trains into `run.out`, resuming from its latest checkpoint if there is one.
+pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Result<TrainSummary> {
+    model.validate()?;
+    config.validate()?;
+    let device = config.device()?;
+    let data = Arc::new(PairDataset::open(run.demo_dir, run.agent_dir, config.val_fraction)?);
+    data.check_fits(model)?;
+    let ckpt_dir = run.out.join(CHECKPOINT_DIR);
+    std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("creating {}", ckpt_dir.display()))?;
+
+    tch::manual_seed(derive_seed("init", &[config.seed]) as i64);
+    let (mut vs, policy) = build_policy(model, device)?;
+    let resumed = checkpoint::latest(&ckpt_dir)?;
+    let start = match &resumed {
+        Some((step, path)) => {
+            checkpoint::load(&mut vs, path)?;
+            *step
+        }
+        None => 0,
+    };
+    let curve_path = run.out.join(CURVE_FILE);
+    let mut curve = curve::read(&curve_path, start)?;
+    let mut opt = nn::Adam::default().build(&vs, config.lr)?;
+    let (h, w) = (data.height, data.width);
+    let val: Vec<DeviceBatch> = (0..config.val_batches)
+        .map(|k| {
+            build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, false)
+                .map(|b| b.to_device(model, h, w, device))
+        })
+        .collect::<Result<_>>()?;
+
+    let clock = std::time::Instant::now();
+    if start == 0 {
+        curve.push(mean_losses(&policy, &val, &config.loss, 0));
+        curve::write(&curve_path, &curve)?;
+    }
+    let spec = PrefetchSpec {
+        model: model.clone(),
+        batch_size: config.batch_size,
+        seed: config.seed,
+        start,
+        augment: config.augment,
+        depth: config.prefetch,
+    };
+    let loader = Prefetcher::start(data.clone(), spec);
+    let bar = crate::data::collect::progress_bar(config.steps, run.progress, "train");
+    bar.set_position(start);
+    tch::manual_seed(derive_seed("dropout", &[config.seed, start]) as i64);
+    let mut window = TrainWindow::default();
+    for step in start + 1..=config.steps {
+        let batch: Batch = loader.next_batch()?;
+        let l = losses(&policy, &batch.to_device(model, h, w, device), true);
+        let total = l.total(&config.loss);
+        opt.backward_step(&total);
+        window.add(&l, &total);
+        if step % config.val_interval == 0 || step == config.steps {
+            curve.push(window.take(step));
+            let v = mean_losses(&policy, &val, &config.loss, step);
+            bar.set_message(format!("train bc {:.3} val bc {:.3}", curve.last().map_or(0.0, |p| p.bc), v.bc));
+            curve.push(v);
+            curve::write(&curve_path, &curve)?;
+        }
+        if step % config.checkpoint_interval == 0 && step != config.steps {
+            checkpoint::save(&vs, &checkpoint::path_for(&ckpt_dir, step))?;
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    drop(loader);
+    checkpoint::save(&vs, &run.out.join(FINAL_WEIGHTS))?;
+    let vals: Vec<f64> = curve.iter().filter(|p| p.split == "val").map(|p| p.bc).collect();
+    let summary = TrainSummary {
+        model: model.clone(),
+        train: config.clone(),
+        steps: config.steps,
+        resumed_from: resumed.map(|(s, _)| s),
+        first_val_bc: vals.first().copied().unwrap_or(f64::NAN),
+        final_val_bc: vals.last().copied().unwrap_or(f64::NAN),
+        seconds: clock.elapsed().as_secs_f64(),
+        parameters: vs.trainable_variables().iter().map(|t| t.numel() as i64).sum(),
+    };
+    let info = run.out.join(FINAL_INFO);
+    std::fs::write(&info, serde_json::to_string_pretty(&summary)? + "\n")
+        .with_context(|| format!("writing {}", info.display()))?;
+    Ok(summary)
+}
+
+/// Training losses accumulated between curve points.
+#[derive(Default)]
+struct TrainWindow {
+    n: f64,
+    sums: [f64; 4],
+}
+
+impl TrainWindow {
+    fn add(&mut self, l: &Losses, total: &Tensor) {
+        let v = [&l.bc, &l.inverse, &l.point, total].map(|t| t.detach().to_kind(Kind::Double).double_value(&[]));
+        for (s, x) in self.sums.iter_mut().zip(v) {
+            *s += x;
+        }
+        self.n += 1.0;
+    }
+
+    fn take(&mut self, step: u64) -> CurvePoint {
+        let n = self.n.max(1.0);
+        let [bc, inverse, point, total] = self.sums.map(|s| s / n);
+        *self = TrainWindow::default();
+        CurvePoint { step, split: "train".into(), bc, inverse, point, total }
+    }
+}
+
+/// A stand-alone training configuration file: `[model]` and `[train]` tables.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainFile {
+    pub model: ModelConfig,
+    pub train: TrainConfig,
+}
+
+impl TrainFile {
+    /// Reads and validates a TOML file; errors name the file, line and key.
+    pub fn load(path: &Path) -> Result<TrainFile> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let file: TrainFile = toml::from_str(&text).with_context(|| format!("in {}", path.display()))?;
+        file.model.validate().with_context(|| format!("in {}", path.display()))?;
+        file.train.validate().with_context(|| format!("in {}", path.display()))?;
+        Ok(file)
+    }
+}
