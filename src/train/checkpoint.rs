@@ -79,10 +79,10 @@ pub fn latest(dir: &Path) -> Result<Option<(u64, PathBuf)>> {
         let path = entry?.path();
         let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
         let step = name.strip_prefix("step_").and_then(|s| s.strip_suffix(".safetensors")).and_then(|s| s.parse().ok());
-        if let Some(step) = step {
-            if best.as_ref().is_none_or(|(b, _)| step > *b) {
-                best = Some((step, path));
-            }
+        if let Some(step) = step
+            && best.as_ref().is_none_or(|(b, _)| step > *b)
+        {
+            best = Some((step, path));
         }
     }
     Ok(best)
