@@ -1,8 +1,10 @@
 //! The `oneshot-lab` command line.
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use oneshot_lab::commands::{bench_world, contact_sheet, expert_check};
+use oneshot_lab::commands::{bench_world, contact_sheet, eval, expert_check};
 use oneshot_lab::data::collect::{CollectConfig, collect};
+use oneshot_lab::eval::EvalConfig;
+use oneshot_lab::eval::summary::print_summary;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
@@ -84,6 +86,37 @@ enum Command {
         batch_size: Option<usize>,
         #[arg(long)]
         device: Option<String>,
+    },
+    /// Closed-loop rollouts on unseen instances: staged success with 95% intervals.
+    Eval {
+        /// `expert`, `random`, or a finished training folder.
+        #[arg(long)]
+        policy: String,
+        #[arg(long, default_value_t = 160)]
+        episodes: usize,
+        #[arg(long, default_value_t = 60)]
+        horizon: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Episodes in lockstep (the network's batch).
+        #[arg(long, default_value_t = 32)]
+        batch: usize,
+        /// Simulation threads (default: CPU cores).
+        #[arg(long)]
+        workers: Option<usize>,
+        #[arg(long, default_value = "auto")]
+        device: String,
+        /// Collection folders whose layouts must not be evaluated on (the training data).
+        #[arg(long, value_delimiter = ',')]
+        exclude_from: Vec<PathBuf>,
+        /// Episode indices to draw as PNG strips (needs --out).
+        #[arg(long, value_delimiter = ',')]
+        strips: Vec<usize>,
+        /// Folder for episodes.jsonl, summary.json and strips.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        #[command(flatten)]
+        frames: FrameArgs,
     },
     /// A PNG of first frames of several instances for both robots.
     ContactSheet {
@@ -172,6 +205,26 @@ fn run(cli: Cli) -> Result<()> {
                 s.final_val_bc,
                 out.display()
             );
+        }
+        Command::Eval {
+            policy,
+            episodes,
+            horizon,
+            seed,
+            batch,
+            workers,
+            device,
+            exclude_from,
+            strips,
+            out,
+            frames,
+        } => {
+            let config = EvalConfig { episodes, horizon, seed, batch, device, strips, ..EvalConfig::default() };
+            let exclude = eval::training_seeds(&exclude_from)?;
+            let workers = workers.unwrap_or_else(default_workers);
+            let policy = eval::PolicyArg::parse(&policy);
+            let (_, summary) = eval::run_eval(&policy, &frames.world(), &config, &exclude, workers, out.as_deref())?;
+            print_summary(&summary);
         }
         Command::ContactSheet { out, instances, seed, frames } => {
             let world = frames.world();

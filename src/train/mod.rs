@@ -11,6 +11,7 @@ use crate::model::heads::point_nll;
 use crate::model::mixture::mixture_nll;
 use crate::model::transformer::TransformerPolicy;
 use crate::seeds::derive_seed;
+use crate::sim::camera::ImageSize;
 use anyhow::{Context, Result};
 use config::{LossWeights, TrainConfig};
 use curve::CurvePoint;
@@ -62,6 +63,8 @@ pub fn losses(policy: &TransformerPolicy, batch: &DeviceBatch, train: bool) -> L
 pub struct TrainSummary {
     pub model: ModelConfig,
     pub train: TrainConfig,
+    /// Frame size the policy was trained on.
+    pub image: ImageSize,
     pub steps: u64,
     pub resumed_from: Option<u64>,
     pub first_val_bc: f64,
@@ -81,13 +84,23 @@ pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::Var
     Ok((vs, policy))
 }
 
-/// Loads a trained policy from a training folder (or a checkpoint file) for inference.
-pub fn load_policy(path: &Path, model: &ModelConfig, device: tch::Device) -> Result<(nn::VarStore, TransformerPolicy)> {
-    let file = if path.is_dir() { path.join(FINAL_WEIGHTS) } else { path.to_path_buf() };
-    let model = ModelConfig { pretrained_backbone: None, ..model.clone() };
-    let (mut vs, policy) = build_policy(&model, device)?;
-    checkpoint::load(&mut vs, &file)?;
-    Ok((vs, policy))
+/// A trained policy ready for inference.
+pub struct TrainedPolicy {
+    pub vars: nn::VarStore,
+    pub policy: TransformerPolicy,
+    pub summary: TrainSummary,
+}
+
+/// Loads the final weights of a finished training folder onto `device`.
+pub fn load_trained(dir: &Path, device: tch::Device) -> Result<TrainedPolicy> {
+    let info = dir.join(FINAL_INFO);
+    let text = std::fs::read_to_string(&info)
+        .with_context(|| format!("reading {} (is {} a finished training folder?)", info.display(), dir.display()))?;
+    let summary: TrainSummary = serde_json::from_str(&text).with_context(|| format!("parsing {}", info.display()))?;
+    let model = ModelConfig { pretrained_backbone: None, ..summary.model.clone() };
+    let (mut vars, policy) = build_policy(&model, device)?;
+    checkpoint::load(&mut vars, &dir.join(FINAL_WEIGHTS))?;
+    Ok(TrainedPolicy { vars, policy, summary })
 }
 
 fn mean_losses(policy: &TransformerPolicy, batches: &[DeviceBatch], w: &LossWeights, step: u64) -> CurvePoint {
@@ -187,6 +200,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let summary = TrainSummary {
         model: model.clone(),
         train: config.clone(),
+        image: ImageSize { height: h, width: w },
         steps: config.steps,
         resumed_from: resumed.map(|(s, _)| s),
         first_val_bc: vals.first().copied().unwrap_or(f64::NAN),

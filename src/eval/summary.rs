@@ -1,0 +1,106 @@
+//! Aggregates of evaluation episodes: success per stage, overall and per task, pooled or as a mean over seeds.
+use super::EpisodeResult;
+use super::stats::{Rate, mean_over_seeds, wilson};
+use crate::sim::task::NUM_TASKS;
+use serde::{Deserialize, Serialize};
+
+/// Rates of the three stages.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StageRates {
+    pub reached: Rate,
+    pub picked: Rate,
+    pub placed: Rate,
+}
+
+/// Wilson rates of the stages over `episodes`.
+pub fn pooled<'a>(episodes: impl IntoIterator<Item = &'a EpisodeResult>) -> StageRates {
+    let (mut n, mut r, mut p, mut d) = (0, 0, 0, 0);
+    for e in episodes {
+        n += 1;
+        r += e.reached as usize;
+        p += e.picked as usize;
+        d += e.placed as usize;
+    }
+    StageRates { reached: wilson(r, n), picked: wilson(p, n), placed: wilson(d, n) }
+}
+
+/// The aggregates of one evaluation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalSummary {
+    pub policy: String,
+    pub episodes: usize,
+    pub overall: StageRates,
+    /// In task order; a task without episodes has NaN rates.
+    pub per_task: Vec<StageRates>,
+}
+
+/// Summarises the episodes of one evaluation of `policy`.
+pub fn summarize(policy: &str, results: &[EpisodeResult]) -> EvalSummary {
+    EvalSummary {
+        policy: policy.to_string(),
+        episodes: results.len(),
+        overall: pooled(results),
+        per_task: (0..NUM_TASKS).map(|t| pooled(results.iter().filter(|e| e.task == t))).collect(),
+    }
+}
+
+/// Over several training seeds: all episodes pooled, and the mean of the per-seed rates with a t interval.
+pub fn across_seeds(per_seed: &[Vec<EpisodeResult>]) -> (StageRates, StageRates) {
+    let all = pooled(per_seed.iter().flatten());
+    let rates: Vec<StageRates> = per_seed.iter().map(pooled).collect();
+    let mean = |f: fn(&StageRates) -> Rate| mean_over_seeds(&rates.iter().map(|r| f(r).value).collect::<Vec<_>>());
+    (all, StageRates { reached: mean(|r| r.reached), picked: mean(|r| r.picked), placed: mean(|r| r.placed) })
+}
+
+/// `value% [low, high]` of a rate.
+pub fn percent(r: &Rate) -> String {
+    if r.n == 0 {
+        return "missing".into();
+    }
+    format!("{:5.1}% [{:5.1}, {:5.1}]", 100.0 * r.value, 100.0 * r.low, 100.0 * r.high)
+}
+
+/// Prints the summary as a table.
+pub fn print_summary(s: &EvalSummary) {
+    println!("{} policy, {} episodes (95% Wilson intervals)", s.policy, s.episodes);
+    println!("{:>4}  {:<22} {:<22} {:<22}", "task", "reached", "picked", "placed");
+    for (t, r) in s.per_task.iter().enumerate().filter(|(_, r)| r.reached.n > 0) {
+        println!("{t:>4}  {:<22} {:<22} {:<22}", percent(&r.reached), percent(&r.picked), percent(&r.placed));
+    }
+    let o = &s.overall;
+    println!("{:>4}  {:<22} {:<22} {:<22}", "all", percent(&o.reached), percent(&o.picked), percent(&o.placed));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn episode(task: usize, stages: [bool; 3]) -> EpisodeResult {
+        EpisodeResult {
+            index: 0,
+            task,
+            agent_seed: 0,
+            demo_seed: 0,
+            reached: stages[0],
+            picked: stages[1],
+            placed: stages[2],
+            steps: 1,
+            first_reached: None,
+            first_picked: None,
+            first_placed: None,
+        }
+    }
+
+    #[test]
+    fn pooled_and_per_seed_aggregates_count_correctly() {
+        let seed_a = vec![episode(0, [true, true, true]), episode(1, [true, false, false])];
+        let seed_b = vec![episode(0, [true, true, false]), episode(1, [false, false, false])];
+        let s = summarize("x", &seed_a);
+        assert_eq!((s.overall.reached.value, s.overall.placed.value), (1.0, 0.5));
+        assert_eq!(s.per_task[1].picked.value, 0.0);
+        assert_eq!(s.per_task[5].reached.n, 0);
+        let (all, mean) = across_seeds(&[seed_a, seed_b]);
+        assert_eq!((all.reached.value, all.picked.value, all.placed.value), (0.75, 0.5, 0.25));
+        assert_eq!((mean.placed.value, mean.placed.n), (0.25, 2));
+    }
+}

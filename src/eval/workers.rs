@@ -1,0 +1,238 @@
+//! Simulation workers for lockstep evaluation: each thread owns its MuJoCo scenes and renderers, makes the
+//! demonstrator videos, and steps its agent scenes with actions chosen centrally (a network, batched) or
+//! locally (the scripted expert, the random policy).
+use crate::seeds::derive_seed;
+use crate::sim::action::{ACTION_DIM, Action};
+use crate::sim::env::{Env, WorldConfig};
+use crate::sim::expert::Expert;
+use crate::sim::robot::Robot;
+use crate::sim::rollout::run_expert;
+use crate::sim::stages::Stages;
+use crate::sim::task::{Instance, Task};
+use anyhow::{Result, bail};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::thread::JoinHandle;
+
+/// Who chooses the agent's actions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Chooser {
+    /// Actions arrive with each step command.
+    Central,
+    /// The scripted expert with privileged state (upper bound).
+    Expert,
+    /// Uniform random normalised actions (floor).
+    Random,
+}
+
+/// One evaluation episode: a task, the agent's layout and the demonstrator's layout.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EpisodeSpec {
+    pub index: usize,
+    pub task: usize,
+    pub agent_seed: u64,
+    pub demo_seed: u64,
+}
+
+/// What a worker reports after starting an episode.
+pub struct Started {
+    /// The demonstrator's whole video (RGB frames).
+    pub demo_frames: Vec<Vec<u8>>,
+    /// Seed of the layout the demonstration succeeded on.
+    pub demo_seed: u64,
+    /// The agent's first frame.
+    pub frame: Vec<u8>,
+}
+
+/// What a worker reports after a step.
+pub struct Stepped {
+    pub frame: Vec<u8>,
+    pub stages: Stages,
+}
+
+enum Command {
+    Start(Vec<EpisodeSpec>),
+    /// Per slot: `None` to leave it alone, `Some(action)` to step it (`Some(None)`: the local chooser decides).
+    Step(Vec<Option<Option<Action>>>),
+}
+
+enum Reply {
+    Started(Result<Vec<Started>>),
+    Stepped(Result<Vec<Stepped>>),
+}
+
+/// A pool of simulation threads.
+pub struct WorkerPool {
+    workers: Vec<(Sender<Command>, Receiver<Reply>, JoinHandle<()>)>,
+}
+
+/// Settings every worker shares.
+#[derive(Clone)]
+pub struct WorkerSpec {
+    pub world: WorldConfig,
+    pub chooser: Chooser,
+    pub demo_max_actions: usize,
+    pub demo_attempts: usize,
+    /// Root of the random policy's draws.
+    pub seed: u64,
+}
+
+struct Slot {
+    env: Env,
+    expert: Option<Expert>,
+    rng: ChaCha8Rng,
+}
+
+struct Worker {
+    spec: WorkerSpec,
+    demo_env: Env,
+    slots: Vec<Slot>,
+}
+
+impl Worker {
+    fn start(&mut self, specs: Vec<EpisodeSpec>) -> Result<Vec<Started>> {
+        while self.slots.len() < specs.len() {
+            let env = Env::new(Robot::Panda, &self.spec.world, true)?;
+            self.slots.push(Slot { env, expert: None, rng: ChaCha8Rng::seed_from_u64(0) });
+        }
+        let mut out = Vec::with_capacity(specs.len());
+        for (slot, spec) in self.slots.iter_mut().zip(&specs) {
+            let task = Task::from_id(spec.task)?;
+            let (demo_frames, demo_seed) = demonstrate(&mut self.demo_env, task, spec.demo_seed, &self.spec)?;
+            slot.env.reset(&Instance::sample(task, spec.agent_seed));
+            slot.expert = (self.spec.chooser == Chooser::Expert).then(|| Expert::new(&slot.env));
+            slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
+            out.push(Started { demo_frames, demo_seed, frame: slot.env.render()? });
+        }
+        Ok(out)
+    }
+
+    fn step(&mut self, commands: Vec<Option<Option<Action>>>) -> Result<Vec<Stepped>> {
+        let mut out = Vec::with_capacity(commands.len());
+        for (slot, command) in self.slots.iter_mut().zip(commands) {
+            let Some(given) = command else {
+                out.push(Stepped { frame: Vec::new(), stages: slot.env.stages() });
+                continue;
+            };
+            let action = match (given, self.spec.chooser) {
+                (Some(a), _) => a,
+                (None, Chooser::Expert) => slot.expert.as_mut().expect("expert set at start").act(&slot.env),
+                (None, Chooser::Random) => {
+                    let n: [f32; ACTION_DIM] = std::array::from_fn(|_| slot.rng.random_range(-1.0..=1.0));
+                    Action::from_normalized(&n)
+                }
+                (None, Chooser::Central) => bail!("central chooser sent no action"),
+            };
+            slot.env.step(&action);
+            out.push(Stepped { frame: slot.env.render()?, stages: slot.env.stages() });
+        }
+        Ok(out)
+    }
+}
+
+/// Runs the demonstrator's expert until it places the object (fresh layouts on failure); returns its frames.
+fn demonstrate(env: &mut Env, task: Task, seed: u64, spec: &WorkerSpec) -> Result<(Vec<Vec<u8>>, u64)> {
+    for attempt in 0..spec.demo_attempts {
+        let s = if attempt == 0 { seed } else { derive_seed("eval-demo-retry", &[seed, attempt as u64]) };
+        let episode = run_expert(env, &Instance::sample(task, s), spec.demo_max_actions, true)?;
+        if episode.stages.placed {
+            let frames = episode.steps.into_iter().map(|s| s.frame.expect("rendered")).collect();
+            return Ok((frames, s));
+        }
+    }
+    bail!("the demonstrator's expert failed {} layouts of task {}", spec.demo_attempts, task.id())
+}
+
+impl WorkerPool {
+    /// Starts `n` worker threads.
+    pub fn new(n: usize, spec: &WorkerSpec) -> Result<WorkerPool> {
+        let mut workers = Vec::with_capacity(n);
+        for _ in 0..n.max(1) {
+            let (to_worker, commands) = channel::<Command>();
+            let (replies, from_worker) = channel::<Reply>();
+            let spec = spec.clone();
+            let handle = std::thread::spawn(move || {
+                let demo_env = match Env::new(Robot::Sawyer, &spec.world, true) {
+                    Ok(e) => e,
+                    Err(e) => {
+                        let _ = replies.send(Reply::Started(Err(e)));
+                        return;
+                    }
+                };
+                let mut worker = Worker { spec, demo_env, slots: Vec::new() };
+                for command in commands {
+                    let reply = match command {
+                        Command::Start(specs) => Reply::Started(worker.start(specs)),
+                        Command::Step(actions) => Reply::Stepped(worker.step(actions)),
+                    };
+                    if replies.send(reply).is_err() {
+                        return;
+                    }
+                }
+            });
+            workers.push((to_worker, from_worker, handle));
+        }
+        Ok(WorkerPool { workers })
+    }
+
+    /// Number of workers.
+    pub fn len(&self) -> usize {
+        self.workers.len()
+    }
+
+    /// Whether the pool has no workers (never, by construction).
+    pub fn is_empty(&self) -> bool {
+        self.workers.is_empty()
+    }
+
+    /// Starts episodes; episode `j` of `specs` goes to worker `j % len`. Results come back in `specs` order.
+    pub fn start(&self, specs: &[EpisodeSpec]) -> Result<Vec<Started>> {
+        let n = self.len();
+        for (w, (tx, _, _)) in self.workers.iter().enumerate() {
+            let mine = specs.iter().skip(w).step_by(n).copied().collect();
+            tx.send(Command::Start(mine)).map_err(|_| anyhow::anyhow!("evaluation worker {w} stopped"))?;
+        }
+        let mut per_worker = Vec::with_capacity(n);
+        for (w, (_, rx, _)) in self.workers.iter().enumerate() {
+            match rx.recv() {
+                Ok(Reply::Started(r)) => per_worker.push(r?.into_iter()),
+                _ => bail!("evaluation worker {w} stopped"),
+            }
+        }
+        Ok(interleave(per_worker, specs.len()))
+    }
+
+    /// Steps episodes (same order as `start`); `None` leaves an episode alone (its frame comes back empty).
+    pub fn step(&self, commands: &[Option<Option<Action>>]) -> Result<Vec<Stepped>> {
+        let n = self.len();
+        for (w, (tx, _, _)) in self.workers.iter().enumerate() {
+            let mine = commands.iter().skip(w).step_by(n).copied().collect();
+            tx.send(Command::Step(mine)).map_err(|_| anyhow::anyhow!("evaluation worker {w} stopped"))?;
+        }
+        let mut per_worker = Vec::with_capacity(n);
+        for (w, (_, rx, _)) in self.workers.iter().enumerate() {
+            match rx.recv() {
+                Ok(Reply::Stepped(r)) => per_worker.push(r?.into_iter()),
+                _ => bail!("evaluation worker {w} stopped"),
+            }
+        }
+        Ok(interleave(per_worker, commands.len()))
+    }
+}
+
+/// Undoes the round-robin split: item j comes from worker j % n.
+fn interleave<T>(mut per_worker: Vec<std::vec::IntoIter<T>>, total: usize) -> Vec<T> {
+    let n = per_worker.len();
+    (0..total).map(|j| per_worker[j % n].next().expect("worker answered for each of its episodes")).collect()
+}
+
+impl Drop for WorkerPool {
+    fn drop(&mut self) {
+        for (tx, rx, handle) in self.workers.drain(..) {
+            drop(tx);
+            drop(rx);
+            let _ = handle.join();
+        }
+    }
+}

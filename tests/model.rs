@@ -1,0 +1,110 @@
+//! The policy network: causality, fitting a batch, checkpoints and configuration errors.
+use oneshot_lab::data::loader::DeviceBatch;
+use oneshot_lab::model::config::ModelConfig;
+use oneshot_lab::model::transformer::TransformerPolicy;
+use oneshot_lab::train::config::LossWeights;
+use oneshot_lab::train::{TrainFile, build_policy, checkpoint, losses};
+use tch::nn::OptimizerConfig;
+use tch::{Device, Kind, Tensor, nn};
+
+fn tiny() -> ModelConfig {
+    ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, dropout: 0.0, ..ModelConfig::default() }
+}
+
+fn images(b: i64, t: i64) -> Tensor {
+    Tensor::randn([b, t, 3, 32, 40], (Kind::Float, Device::Cpu))
+}
+
+fn scratch(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("oneshot-test-model-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn a_future_agent_frame_does_not_change_earlier_outputs() {
+    tch::manual_seed(0);
+    let (_vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
+    let context = images(2, 4);
+    let agent = images(2, 7);
+    let changed = agent.copy();
+    let _ = changed.narrow(1, 4, 1).fill_(3.0);
+    let a = policy.forward_t(&context, &agent, false);
+    let b = policy.forward_t(&context, &changed, false);
+    let diff = |x: &Tensor, y: &Tensor| (x - y).abs().max().double_value(&[]);
+    assert!(diff(&a.actions.means.narrow(1, 0, 4), &b.actions.means.narrow(1, 0, 4)) < 1e-5);
+    assert!(diff(&a.actions.logits.narrow(1, 0, 4), &b.actions.logits.narrow(1, 0, 4)) < 1e-5);
+    assert!(diff(&a.inverse.means.narrow(1, 0, 3), &b.inverse.means.narrow(1, 0, 3)) < 1e-5);
+    assert!(diff(&a.point.mean, &b.point.mean) < 1e-5, "the task embedding sees only the first agent frame");
+    assert!(diff(&a.actions.means.narrow(1, 4, 3), &b.actions.means.narrow(1, 4, 3)) > 1e-4, "later frames do change");
+}
+
+#[test]
+fn a_tiny_model_overfits_one_batch() {
+    tch::manual_seed(1);
+    let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
+    let batch = DeviceBatch {
+        context: images(4, 4),
+        agent: images(4, 7),
+        actions: Tensor::rand([4, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        points: Tensor::rand([4, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+    };
+    let mut opt = nn::Adam::default().build(&vs, 1e-2).unwrap();
+    let w = LossWeights::default();
+    let first = losses(&policy, &batch, true).bc.double_value(&[]);
+    for i in 0..1500 {
+        if i == 800 {
+            opt.set_lr(2e-3);
+        }
+        opt.backward_step(&losses(&policy, &batch, true).total(&w));
+    }
+    let last = losses(&policy, &batch, true).bc.double_value(&[]);
+    assert!(last < 0.1 * first, "BC loss {first} -> {last}");
+}
+
+#[test]
+fn a_checkpoint_round_trips_exactly_and_refuses_another_architecture() {
+    let dir = scratch("ckpt");
+    let path = dir.join("a.safetensors");
+    tch::manual_seed(2);
+    let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
+    checkpoint::save(&vs, &path).unwrap();
+    tch::manual_seed(3);
+    let (mut vs2, policy2) = build_policy(&tiny(), Device::Cpu).unwrap();
+    checkpoint::load(&mut vs2, &path).unwrap();
+    let (v1, v2) = (vs.variables(), vs2.variables());
+    assert_eq!(v1.len(), v2.len());
+    for (name, t) in &v1 {
+        assert!(t.equal(&v2[name]), "{name}");
+    }
+    let (c, a) = (images(1, 4), images(1, 7));
+    assert!(policy.forward_t(&c, &a, false).actions.means.equal(&policy2.forward_t(&c, &a, false).actions.means));
+
+    let wider = ModelConfig { backbone_width: 16, ..tiny() };
+    let (mut vs3, _p): (nn::VarStore, TransformerPolicy) = build_policy(&wider, Device::Cpu).unwrap();
+    let err = checkpoint::load(&mut vs3, &path).unwrap_err().to_string();
+    assert!(err.contains("a.safetensors") && err.contains("backbone"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_training_files_name_the_key() {
+    let dir = scratch("config");
+    let cases = [
+        ("[train]\nsteps = 10\nlearning_rate = 0.1\n", "learning_rate"),
+        ("[train]\nlr = -0.5\n", "train.lr"),
+        ("[model]\nattention_heads = 3\n", "attention_inner"),
+        ("[model]\ncontext = \"middle\"\n", "middle"),
+    ];
+    for (text, needle) in cases {
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, text).unwrap();
+        let err = format!("{:#}", TrainFile::load(&path).unwrap_err());
+        assert!(err.contains(needle) && err.contains("bad.toml"), "{text}: {err}");
+    }
+    std::fs::write(dir.join("bad.toml"), "[train]\n\nsteps = \"many\"\n").unwrap();
+    let err = format!("{:#}", TrainFile::load(&dir.join("bad.toml")).unwrap_err());
+    assert!(err.contains("line 3"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
