@@ -1,10 +1,12 @@
 //! The `oneshot-lab` command line.
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use oneshot_lab::commands::{bench_world, contact_sheet, eval, expert_check};
+use oneshot_lab::commands::{bench_world, contact_sheet, eval, expert_check, inspect, orchestrate};
 use oneshot_lab::data::collect::{CollectConfig, collect};
 use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::eval::summary::print_summary;
+use oneshot_lab::pipeline::scheduler::RunOptions;
+use oneshot_lab::pipeline::store::Store;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
@@ -118,6 +120,75 @@ enum Command {
         #[command(flatten)]
         frames: FrameArgs,
     },
+    /// Runs an experiment file: what is not cached executes, then the report is written.
+    Run {
+        file: PathBuf,
+        #[command(flatten)]
+        store: StoreArgs,
+        /// Stages executed at once.
+        #[arg(long, default_value_t = 1)]
+        jobs: usize,
+        /// Simulation threads per collection or evaluation stage (default: CPU cores).
+        #[arg(long)]
+        workers: Option<usize>,
+        /// Only cells whose `cell/kind` label matches (`*` wildcards), plus what they need.
+        #[arg(long)]
+        only: Option<String>,
+        /// Re-run matching stages and everything below them.
+        #[arg(long)]
+        force: Option<String>,
+        /// Show what would run.
+        #[arg(long)]
+        dry_run: bool,
+        /// CUDA device indices, one per concurrent network stage (e.g. 0,1).
+        #[arg(long, value_delimiter = ',')]
+        gpus: Vec<usize>,
+    },
+    /// The grid as cells x stages: cached, to run or failed, with an estimate of the time left.
+    Plan {
+        file: PathBuf,
+        #[command(flatten)]
+        store: StoreArgs,
+    },
+    /// Why a stage would run: its inputs against the nearest cached stage of its kind.
+    Why {
+        /// Stage key or its first characters.
+        stage: String,
+        #[arg(long, default_value = "runs")]
+        store: PathBuf,
+    },
+    /// Stages by kind and status, running attempts and recent failures.
+    Status {
+        #[arg(long, default_value = "runs")]
+        store: PathBuf,
+    },
+    /// A named summary (cells, stages, failures, curves) or raw SQL, read-only.
+    Query {
+        query: String,
+        #[arg(long, value_enum, default_value = "table")]
+        format: inspect::Format,
+        #[arg(long, default_value = "runs")]
+        store: PathBuf,
+    },
+    /// Artifacts no given experiment file references (listed; removed with --delete).
+    Gc {
+        files: Vec<PathBuf>,
+        #[arg(long)]
+        profile: Option<String>,
+        #[arg(long, default_value = "runs")]
+        store: PathBuf,
+        #[arg(long)]
+        delete: bool,
+    },
+    /// Rebuilds an experiment's tables and figures from the results store.
+    Report {
+        file: PathBuf,
+        #[command(flatten)]
+        store: StoreArgs,
+        /// Output folder (default: STORE/reports/NAME).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// A PNG of first frames of several instances for both robots.
     ContactSheet {
         #[arg(long, default_value = "contact_sheet.png")]
@@ -129,6 +200,17 @@ enum Command {
         #[command(flatten)]
         frames: FrameArgs,
     },
+}
+
+/// The results store and the experiment's scale profile.
+#[derive(clap::Args)]
+struct StoreArgs {
+    /// Store folder (database and artifacts).
+    #[arg(long, default_value = "runs")]
+    store: PathBuf,
+    /// Scale profile defined in the experiment file (e.g. `cpu`).
+    #[arg(long)]
+    profile: Option<String>,
 }
 
 /// Frame size and visuals of rendered scenes.
@@ -225,6 +307,38 @@ fn run(cli: Cli) -> Result<()> {
             let policy = eval::PolicyArg::parse(&policy);
             let (_, summary) = eval::run_eval(&policy, &frames.world(), &config, &exclude, workers, out.as_deref())?;
             print_summary(&summary);
+        }
+        Command::Run { file, store, jobs, workers, only, force, dry_run, gpus } => {
+            let opts = RunOptions {
+                jobs,
+                only,
+                force,
+                dry_run,
+                gpus: gpus.iter().map(|g| format!("cuda:{g}")).collect(),
+                workers: workers.unwrap_or_else(default_workers),
+                progress: true,
+            };
+            orchestrate::run_experiment(&file, store.profile.as_deref(), &store.store, &opts)?;
+        }
+        Command::Plan { file, store } => orchestrate::print_plan(&file, store.profile.as_deref(), &store.store)?,
+        Command::Why { stage, store } => inspect::why(&store, &stage)?,
+        Command::Status { store } => inspect::status(&store)?,
+        Command::Query { query, format, store } => inspect::query(&store, &query, format)?,
+        Command::Gc { files, profile, store, delete } => {
+            let unused = inspect::gc(&store, &files, profile.as_deref(), delete)?;
+            for p in &unused {
+                println!("{}{}", if delete { "removed " } else { "" }, p.display());
+            }
+            if !delete && !unused.is_empty() {
+                println!("{} unused artifact folders; run again with --delete to remove them", unused.len());
+            }
+        }
+        Command::Report { file, store, out } => {
+            let experiment = oneshot_lab::config::Experiment::load(&file, store.profile.as_deref())?;
+            let out = out.unwrap_or_else(|| oneshot_lab::report::report_dir(&store.store, &experiment.name));
+            let db = Store::open(&store.store)?;
+            oneshot_lab::report::write_report(&db, &experiment.name, &out)?;
+            println!("wrote {}", out.join("index.md").display());
         }
         Command::ContactSheet { out, instances, seed, frames } => {
             let world = frames.world();

@@ -3,3 +3,5 @@ pub mod bench_world;
 pub mod contact_sheet;
 pub mod eval;
 pub mod expert_check;
+pub mod inspect;
+pub mod orchestrate;

@@ -1,0 +1,327 @@
+//! The results store: one SQLite database (WAL mode) beside the artifacts under the store folder.
+//!
+//! Schema (query it with `sqlite3 runs/oneshot.sqlite`):
+//! - `stages(key, kind, version, inputs, upstream, status, artifact, created_at, finished_at, seconds)`:
+//!   one row per stage ever planned; `status` is `planned`, `running`, `done` or `failed`; `inputs` is the resolved
+//!   configuration (JSON) that went into the key, `upstream` a JSON array of upstream keys.
+//! - `attempts(id, stage_key, status, host, pid, started_at, finished_at, error)`: every execution of a stage.
+//! - `experiments(name, file, description, profile, updated_at)` and
+//!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`.
+//! - `episodes(eval_key, idx, task, agent_seed, demo_seed, reached, picked, placed, steps, first_reached,
+//!   first_picked, first_placed)`: every evaluation episode.
+//! - `metrics(stage_key, name, value)`: scalar results (e.g. `placed`, `final_val_bc`, `trajectories`).
+//! - `loss_curves(train_key, step, split, bc, inverse, point, total)`.
+//!
+//! Timestamps are Unix seconds.
+use super::graph::{PlannedCell, Stage};
+use crate::eval::EpisodeResult;
+use crate::train::curve::CurvePoint;
+use anyhow::{Context, Result};
+use rusqlite::{Connection, OptionalExtension, TransactionBehavior, params};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// File name of the database inside the store folder.
+pub const DATABASE: &str = "oneshot.sqlite";
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS stages (
+    key TEXT PRIMARY KEY, kind TEXT NOT NULL, version INTEGER NOT NULL, inputs TEXT NOT NULL,
+    upstream TEXT NOT NULL, status TEXT NOT NULL DEFAULT 'planned', artifact TEXT,
+    created_at REAL NOT NULL, finished_at REAL, seconds REAL);
+CREATE TABLE IF NOT EXISTS attempts (
+    id INTEGER PRIMARY KEY, stage_key TEXT NOT NULL REFERENCES stages(key), status TEXT NOT NULL,
+    host TEXT NOT NULL, pid INTEGER NOT NULL, started_at REAL NOT NULL, finished_at REAL, error TEXT);
+CREATE TABLE IF NOT EXISTS experiments (
+    name TEXT PRIMARY KEY, file TEXT NOT NULL, description TEXT NOT NULL, profile TEXT, updated_at REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS cells (
+    experiment TEXT NOT NULL, cell TEXT NOT NULL, policy TEXT NOT NULL, size INTEGER, variant TEXT, seed INTEGER,
+    collect_demo TEXT, collect_agent TEXT, train_key TEXT, eval_key TEXT NOT NULL,
+    PRIMARY KEY (experiment, cell));
+CREATE TABLE IF NOT EXISTS episodes (
+    eval_key TEXT NOT NULL, idx INTEGER NOT NULL, task INTEGER NOT NULL, agent_seed TEXT NOT NULL,
+    demo_seed TEXT NOT NULL, reached INTEGER NOT NULL, picked INTEGER NOT NULL, placed INTEGER NOT NULL,
+    steps INTEGER NOT NULL, first_reached INTEGER, first_picked INTEGER, first_placed INTEGER,
+    PRIMARY KEY (eval_key, idx));
+CREATE TABLE IF NOT EXISTS metrics (
+    stage_key TEXT NOT NULL, name TEXT NOT NULL, value REAL NOT NULL, PRIMARY KEY (stage_key, name));
+CREATE TABLE IF NOT EXISTS loss_curves (
+    train_key TEXT NOT NULL, step INTEGER NOT NULL, split TEXT NOT NULL, bc REAL NOT NULL, inverse REAL NOT NULL,
+    point REAL NOT NULL, total REAL NOT NULL, PRIMARY KEY (train_key, step, split));
+CREATE INDEX IF NOT EXISTS attempts_by_stage ON attempts(stage_key);
+";
+
+/// Seconds since the Unix epoch.
+pub fn now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// This machine's name.
+pub fn host() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+/// Whether process `pid` is alive on this machine.
+fn alive(pid: i64) -> bool {
+    Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// The status of a stage as the store knows it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StageState {
+    Missing,
+    Planned,
+    Done,
+    Failed(String),
+    /// Running in a live process (host, pid).
+    Running(String, i64),
+}
+
+/// Outcome of trying to claim a stage.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Claim {
+    /// This process now runs it; the attempt id.
+    Acquired(i64),
+    AlreadyDone,
+    /// A live process runs it.
+    Busy,
+}
+
+/// An open results store.
+pub struct Store {
+    conn: Connection,
+    root: PathBuf,
+}
+
+impl Store {
+    /// Opens (creating if needed) the store in folder `root`.
+    pub fn open(root: &Path) -> Result<Store> {
+        std::fs::create_dir_all(root).with_context(|| format!("creating store folder {}", root.display()))?;
+        let path = root.join(DATABASE);
+        let conn = Connection::open(&path).with_context(|| format!("opening {}", path.display()))?;
+        conn.busy_timeout(Duration::from_secs(60))?;
+        conn.pragma_update(None, "journal_mode", "WAL")?;
+        conn.pragma_update(None, "synchronous", "NORMAL")?;
+        conn.execute_batch(SCHEMA).with_context(|| format!("creating the schema in {}", path.display()))?;
+        Ok(Store { conn, root: root.to_path_buf() })
+    }
+
+    /// The store folder.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// The connection, for queries.
+    pub fn conn(&self) -> &Connection {
+        &self.conn
+    }
+
+    /// Records the stages (inputs and upstream) of a plan, keeping what is already known.
+    pub fn register(&mut self, stages: &[&Stage]) -> Result<()> {
+        let tx = self.conn.transaction()?;
+        for s in stages {
+            tx.execute(
+                "INSERT OR IGNORE INTO stages (key, kind, version, inputs, upstream, created_at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![
+                    s.key,
+                    s.kind.name(),
+                    s.kind.version(),
+                    serde_json::to_string(&s.inputs)?,
+                    serde_json::to_string(&s.upstream)?,
+                    now()
+                ],
+            )?;
+        }
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// Records an experiment and its cells (replacing its previous cells).
+    pub fn record_experiment(
+        &mut self,
+        name: &str,
+        file: &str,
+        description: &str,
+        profile: Option<&str>,
+        cells: &[PlannedCell],
+    ) -> Result<()> {
+        let tx = self.conn.transaction()?;
+        tx.execute(
+            "INSERT INTO experiments (name, file, description, profile, updated_at) VALUES (?1, ?2, ?3, ?4, ?5)
+             ON CONFLICT(name) DO UPDATE SET file = ?2, description = ?3, profile = ?4, updated_at = ?5",
+            params![name, file, description, profile, now()],
+        )?;
+        tx.execute("DELETE FROM cells WHERE experiment = ?1", [name])?;
+        for c in cells {
+            tx.execute(
+                "INSERT INTO cells (experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                params![name, c.name, c.policy, c.size.map(|n| n as i64), c.variant, c.seed.map(|s| s as i64), c.collect_demo, c.collect_agent, c.train, c.eval],
+            )?;
+        }
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// The state of stage `key`.
+    pub fn state(&self, key: &str) -> Result<StageState> {
+        let row: Option<String> =
+            self.conn.query_row("SELECT status FROM stages WHERE key = ?1", [key], |r| r.get(0)).optional()?;
+        Ok(match row.as_deref() {
+            None => StageState::Missing,
+            Some("done") => StageState::Done,
+            Some("running") => match self.live_attempt(key)? {
+                Some((host, pid)) => StageState::Running(host, pid),
+                None => StageState::Failed("interrupted".into()),
+            },
+            Some("failed") => StageState::Failed(self.last_error(key)?.unwrap_or_default()),
+            _ => StageState::Planned,
+        })
+    }
+
+    fn live_attempt(&self, key: &str) -> Result<Option<(String, i64)>> {
+        let row: Option<(String, i64)> = self
+            .conn
+            .query_row(
+                "SELECT host, pid FROM attempts WHERE stage_key = ?1 AND status = 'running' ORDER BY id DESC LIMIT 1",
+                [key],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()?;
+        Ok(row.filter(|(h, pid)| *h != host() || alive(*pid)))
+    }
+
+    fn last_error(&self, key: &str) -> Result<Option<String>> {
+        Ok(self
+            .conn
+            .query_row("SELECT error FROM attempts WHERE stage_key = ?1 ORDER BY id DESC LIMIT 1", [key], |r| r.get(0))
+            .optional()?
+            .flatten())
+    }
+
+    /// Claims stage `key` for this process, atomically with respect to other processes on the store.
+    pub fn claim(&mut self, key: &str, force: bool) -> Result<Claim> {
+        let (h, pid) = (host(), std::process::id() as i64);
+        let tx = self.conn.transaction_with_behavior(TransactionBehavior::Immediate)?;
+        let status: String = tx.query_row("SELECT status FROM stages WHERE key = ?1", [key], |r| r.get(0))?;
+        if status == "done" && !force {
+            return Ok(Claim::AlreadyDone);
+        }
+        let running: Option<(i64, String, i64)> = tx
+            .query_row(
+                "SELECT id, host, pid FROM attempts WHERE stage_key = ?1 AND status = 'running' ORDER BY id DESC LIMIT 1",
+                [key],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+            )
+            .optional()?;
+        if let Some((id, rh, rpid)) = running {
+            if rh != h || alive(rpid) && rpid != pid {
+                return Ok(Claim::Busy);
+            }
+            tx.execute(
+                "UPDATE attempts SET status = 'failed', finished_at = ?2, error = 'interrupted (process gone)' WHERE id = ?1",
+                params![id, now()],
+            )?;
+        }
+        tx.execute("UPDATE stages SET status = 'running', finished_at = NULL WHERE key = ?1", [key])?;
+        tx.execute(
+            "INSERT INTO attempts (stage_key, status, host, pid, started_at) VALUES (?1, 'running', ?2, ?3, ?4)",
+            params![key, h, pid, now()],
+        )?;
+        let id = tx.last_insert_rowid();
+        tx.commit()?;
+        Ok(Claim::Acquired(id))
+    }
+
+    /// Marks a claimed stage failed.
+    pub fn fail(&mut self, key: &str, attempt: i64, error: &str) -> Result<()> {
+        let tx = self.conn.transaction()?;
+        tx.execute("UPDATE stages SET status = 'failed', finished_at = ?2 WHERE key = ?1", params![key, now()])?;
+        tx.execute(
+            "UPDATE attempts SET status = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1",
+            params![attempt, now(), error],
+        )?;
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// Marks a claimed stage done with its artifact folder and results, in one transaction.
+    pub fn complete(&mut self, key: &str, attempt: i64, artifact: &Path, results: &StageResults) -> Result<()> {
+        let tx = self.conn.transaction()?;
+        let started: f64 = tx.query_row("SELECT started_at FROM attempts WHERE id = ?1", [attempt], |r| r.get(0))?;
+        let t = now();
+        for table in ["episodes WHERE eval_key", "metrics WHERE stage_key", "loss_curves WHERE train_key"] {
+            tx.execute(&format!("DELETE FROM {table} = ?1"), [key])?;
+        }
+        for e in &results.episodes {
+            tx.execute(
+                "INSERT INTO episodes VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
+                params![
+                    key,
+                    e.index as i64,
+                    e.task as i64,
+                    e.agent_seed.to_string(),
+                    e.demo_seed.to_string(),
+                    e.reached,
+                    e.picked,
+                    e.placed,
+                    e.steps as i64,
+                    e.first_reached.map(|v| v as i64),
+                    e.first_picked.map(|v| v as i64),
+                    e.first_placed.map(|v| v as i64)
+                ],
+            )?;
+        }
+        for (name, value) in &results.metrics {
+            tx.execute("INSERT INTO metrics VALUES (?1, ?2, ?3)", params![key, name, value])?;
+        }
+        for p in &results.curve {
+            tx.execute(
+                "INSERT INTO loss_curves VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                params![key, p.step as i64, p.split, p.bc, p.inverse, p.point, p.total],
+            )?;
+        }
+        tx.execute(
+            "UPDATE stages SET status = 'done', artifact = ?2, finished_at = ?3, seconds = ?4 WHERE key = ?1",
+            params![key, artifact.to_string_lossy(), t, t - started],
+        )?;
+        tx.execute("UPDATE attempts SET status = 'done', finished_at = ?2 WHERE id = ?1", params![attempt, t])?;
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// The artifact folder of a finished stage.
+    pub fn artifact(&self, key: &str) -> Result<Option<PathBuf>> {
+        Ok(self
+            .conn
+            .query_row("SELECT artifact FROM stages WHERE key = ?1 AND status = 'done'", [key], |r| {
+                r.get::<_, Option<String>>(0)
+            })
+            .optional()?
+            .flatten()
+            .map(PathBuf::from))
+    }
+
+    /// Marks the stage whose artifact folder was `artifact` as to be re-run (its folder was removed).
+    pub fn forget_artifact(&mut self, artifact: &str) -> Result<()> {
+        self.conn.execute("UPDATE stages SET status = 'planned', artifact = NULL WHERE artifact = ?1", [artifact])?;
+        Ok(())
+    }
+
+    /// Mean seconds of finished stages of `kind`, for estimates.
+    pub fn mean_seconds(&self, kind: &str) -> Result<Option<f64>> {
+        Ok(self
+            .conn
+            .query_row("SELECT AVG(seconds) FROM stages WHERE kind = ?1 AND status = 'done'", [kind], |r| r.get(0))?)
+    }
+}
+
+/// What a finished stage adds to the store.
+#[derive(Default)]
+pub struct StageResults {
+    pub episodes: Vec<EpisodeResult>,
+    pub metrics: Vec<(String, f64)>,
+    pub curve: Vec<CurvePoint>,
+}

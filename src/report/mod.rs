@@ -1,0 +1,116 @@
+//! Reports: the paper's tables and figures for one experiment, rebuilt from the results store alone.
+pub mod data;
+pub mod paper;
+pub mod plots;
+pub mod tables;
+
+use crate::pipeline::graph::short;
+use crate::pipeline::store::Store;
+use anyhow::{Context, Result};
+use data::ResultRow;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// The code version stamped on reports: crate version and the git commit it was built from.
+pub const CODE_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+", env!("ONESHOT_GIT_COMMIT"));
+
+/// Where the report of `experiment` goes in the store folder.
+pub fn report_dir(root: &Path, experiment: &str) -> PathBuf {
+    root.join("reports").join(experiment)
+}
+
+fn context_table(rows: &[&ResultRow]) -> String {
+    let mut s = String::from("| context | model | seeds | place % [95% CI] |\n| --- | --- | --- | --- |\n");
+    for r in rows {
+        let place = match &r.pooled {
+            Some(p) => format!("{:.1} [{:.1}, {:.1}]", 100.0 * p[2].value, 100.0 * p[2].low, 100.0 * p[2].high),
+            None => "missing".into(),
+        };
+        let context = match r.context.as_deref() {
+            Some("spread") => "4 frames (first, last, 2 between)".to_string(),
+            Some("first_last") => "first + last frame".into(),
+            Some("final") => "final frame only".into(),
+            other => other.unwrap_or("-").to_string(),
+        };
+        let _ = writeln!(s, "| {context} | {} | {}/{} | {place} |", r.label, r.seeds_done, r.seeds_total);
+    }
+    s
+}
+
+/// Writes every table and figure of `experiment` into `out` (replacing it as a whole once complete).
+pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
+    let cells = data::cells(store, experiment)?;
+    let rows = data::rows(&cells);
+    let (file, description, profile): (String, String, Option<String>) = store.conn().query_row(
+        "SELECT file, description, profile FROM experiments WHERE name = ?1",
+        [experiment],
+        |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+    )?;
+    let parent = out.parent().context("report folder has a parent")?;
+    std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    let staging = parent.join(format!(".{experiment}.partial"));
+    if staging.exists() {
+        std::fs::remove_dir_all(&staging)?;
+    }
+    std::fs::create_dir_all(&staging)?;
+    let write = |name: &str, text: &str| -> Result<()> {
+        std::fs::write(staging.join(name), text).with_context(|| format!("writing {name}"))
+    };
+
+    let caption = format!("Success rates of experiment {experiment} (pooled over seeds, 95\\% Wilson intervals).");
+    write("table1.md", &tables::markdown(&rows))?;
+    write("table1.csv", &tables::csv(&rows))?;
+    write("table1.tex", &tables::latex(&rows, &caption))?;
+    let largest = rows.iter().filter_map(|r| r.size).max();
+    let at_largest: Vec<&ResultRow> = rows.iter().filter(|r| r.size.is_some() && r.size == largest).collect();
+    write("context.md", &context_table(&at_largest))?;
+
+    plots::success_bars(&staging, &rows)?;
+    plots::success_vs_size(&staging, &rows)?;
+    let mut curves = Vec::new();
+    for r in &at_largest {
+        if let Some(k) = r.train_keys.first() {
+            let c = data::curve(store, k)?;
+            if !c.is_empty() {
+                curves.push((r.label.clone(), c));
+            }
+        }
+    }
+    plots::loss_curves(&staging, &curves)?;
+
+    let mut index = format!("# {experiment}\n\n");
+    if !description.is_empty() {
+        let _ = writeln!(index, "{description}\n");
+    }
+    let _ = writeln!(
+        index,
+        "Experiment file `{file}`{}; code version `{CODE_VERSION}`.",
+        match &profile {
+            Some(p) => format!(", profile `{p}`"),
+            None => String::new(),
+        }
+    );
+    index += "Every number below is recomputed from the results store (`oneshot.sqlite`); rates are pooled over \
+              training seeds with 95% Wilson score intervals (`table1.csv` also has the mean over seeds with a \
+              Student-t interval). A configuration without finished evaluations shows as `missing`.\n\n";
+    index += "## Table 1: success per stage\n\n";
+    index += &tables::markdown(&rows);
+    index += "\nAlso as [CSV](table1.csv) and [LaTeX](table1.tex).\n\n## Context ablation (largest training set)\n\n";
+    index += &context_table(&at_largest);
+    index += "\n## Figures\n\n![success per configuration](success_by_configuration.png)\n\n";
+    index += "![success vs training data](success_vs_size.png)\n\n![BC loss curves](loss_curves.png)\n\n";
+    index += "SVG versions sit beside the PNGs.\n\n## Sources\n\n| model | train stages | eval stages |\n| --- | --- | --- |\n";
+    for r in &rows {
+        let keys = |ks: &[String]| ks.iter().map(|k| format!("`{}`", short(k))).collect::<Vec<_>>().join(" ");
+        let _ = writeln!(index, "| {} | {} | {} |", r.label, keys(&r.train_keys), keys(&r.eval_keys));
+    }
+    index += "\nStage keys are blake3 hashes of each stage's resolved configuration, its implementation version and \
+              its upstream keys; `oneshot-lab why KEY` shows a stage's inputs.\n";
+    write("index.md", &index)?;
+
+    if out.exists() {
+        std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
+    }
+    std::fs::rename(&staging, out).with_context(|| format!("moving the report to {}", out.display()))?;
+    Ok(())
+}

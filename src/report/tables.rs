@@ -1,0 +1,99 @@
+//! Results tables as Markdown, LaTeX (booktabs) and CSV. Missing results appear as `missing`.
+use super::data::ResultRow;
+use super::paper::paper_stages;
+use crate::eval::stats::Rate;
+
+const STAGES: [&str; 3] = ["reach", "pick", "place"];
+
+fn pct(r: &Rate) -> String {
+    format!("{:.1} [{:.1}, {:.1}]", 100.0 * r.value, 100.0 * r.low, 100.0 * r.high)
+}
+
+fn seeds(r: &ResultRow) -> String {
+    format!("{}/{}", r.seeds_done, r.seeds_total)
+}
+
+fn paper(r: &ResultRow, s: usize) -> String {
+    match paper_stages(r).and_then(|p| p[s]) {
+        Some((v, h)) => format!("{v:.1} ± {h:.1}"),
+        None => String::new(),
+    }
+}
+
+/// Markdown table: rows x stages (pooled %, 95% Wilson interval), seeds done, the paper's value where reported.
+pub fn markdown(rows: &[ResultRow]) -> String {
+    let mut s =
+        String::from("| model | seeds | reach % [95% CI] | pick % [95% CI] | place % [95% CI] | paper place % |\n");
+    s += "| --- | --- | --- | --- | --- | --- |\n";
+    for r in rows {
+        let cells: Vec<String> = match &r.pooled {
+            Some(p) => p.iter().map(pct).collect(),
+            None => vec!["missing".into(); 3],
+        };
+        s +=
+            &format!("| {} | {} | {} | {} | {} | {} |\n", r.label, seeds(r), cells[0], cells[1], cells[2], paper(r, 2));
+    }
+    s
+}
+
+/// CSV with pooled and mean-over-seeds figures (fractions) and the stage keys behind them.
+pub fn csv(rows: &[ResultRow]) -> String {
+    let mut s = String::from("model,policy,size,variant,context,seeds_done,seeds_total");
+    for st in STAGES {
+        s += &format!(",{st},{st}_low,{st}_high,{st}_seed_mean,{st}_seed_low,{st}_seed_high");
+    }
+    s += ",eval_keys\n";
+    for r in rows {
+        s += &format!(
+            "{},{},{},{},{},{},{}",
+            r.label,
+            r.policy,
+            r.size.map(|n| n.to_string()).unwrap_or_default(),
+            r.variant.clone().unwrap_or_default(),
+            r.context.clone().unwrap_or_default(),
+            r.seeds_done,
+            r.seeds_total
+        );
+        for st in 0..3 {
+            match (&r.pooled, &r.mean) {
+                (Some(p), Some(m)) => {
+                    let (p, m) = (p[st], m[st]);
+                    s += &format!(
+                        ",{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+                        p.value, p.low, p.high, m.value, m.low, m.high
+                    );
+                }
+                _ => s += ",missing,,,,,",
+            }
+        }
+        s += &format!(",{}\n", r.eval_keys.join(" "));
+    }
+    s
+}
+
+/// LaTeX table body for the booktabs package.
+pub fn latex(rows: &[ResultRow], caption: &str) -> String {
+    let mut s = String::from("\\begin{table}[t]\n\\centering\n\\begin{tabular}{lcccc}\n\\toprule\n");
+    s += "Model & Seeds & Reach (\\%) & Pick (\\%) & Place (\\%) \\\\\n\\midrule\n";
+    for r in rows {
+        let cells: Vec<String> = match &r.pooled {
+            Some(p) => p
+                .iter()
+                .map(|x| {
+                    format!("{:.1} {{\\scriptsize [{:.1}, {:.1}]}}", 100.0 * x.value, 100.0 * x.low, 100.0 * x.high)
+                })
+                .collect(),
+            None => vec!["missing".into(); 3],
+        };
+        s += &format!(
+            "{} & {} & {} & {} & {} \\\\\n",
+            r.label.replace('_', "\\_"),
+            seeds(r),
+            cells[0],
+            cells[1],
+            cells[2]
+        );
+    }
+    s += &format!("\\bottomrule\n\\end{{tabular}}\n\\caption{{{caption}}}\n\\end{{table}}\n");
+    s
+}
