@@ -9,8 +9,7 @@ build: setup
 
 # The main job: set up, build, and run the small default experiment.
 smoke: build
-	./target/release/oneshot-lab expert-check --robot panda --per-task 2
-	./target/release/oneshot-lab contact-sheet --out runs/contact_sheet.png
+	./target/release/oneshot-lab run experiments/smoke.toml
 
 # The test command CI runs.
 test: setup

@@ -235,6 +235,11 @@ impl FrameArgs {
 }
 
 fn main() {
+    // Exit quietly when stdout is closed early (e.g. `oneshot-lab query cells | head`).
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     if let Err(e) = run(Cli::parse()) {
         eprintln!("error: {e:#}");
         std::process::exit(1);

@@ -102,11 +102,11 @@ pub fn print_plan(file: &Path, profile: Option<&str>, root: &Path) -> Result<()>
         }
     }
     print!("{todo} stages to run");
-    if todo > 0 {
-        print!(", about {:.0} s of work by past runs of the same kinds", estimate);
-        if unknown > 0 {
-            print!(" ({unknown} with no past run to estimate from)");
-        }
+    if todo > unknown {
+        print!(", about {estimate:.0} s of work judging by past stages of the same kinds");
+    }
+    if unknown > 0 {
+        print!(" ({unknown} of a kind never run in this store, so not estimated)");
     }
     println!();
     Ok(())

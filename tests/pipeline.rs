@@ -1,0 +1,304 @@
+//! The orchestrator against real (tiny) stages: caching, selective re-runs, interruption, concurrency, reports.
+use rusqlite::Connection;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn oneshot() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_oneshot-lab"))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("oneshot-test-pipeline-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A tiny experiment: task 0 only, 32x40 frames, a narrow network, a few steps, two short episodes.
+fn experiment(seeds: &str, jpeg_quality: u8, steps: u32) -> String {
+    format!(
+        r#"name = "tiny"
+[world.image]
+height = 32
+width = 40
+[collect]
+tasks = [0]
+jpeg_quality = {jpeg_quality}
+[model]
+backbone_width = 8
+attention_inner = 16
+embed_hidden = 32
+[train]
+steps = {steps}
+batch_size = 2
+val_interval = 2
+val_batches = 1
+checkpoint_interval = 20
+[eval]
+episodes = 2
+horizon = 3
+batch = 2
+[variants.no_point]
+train.loss.point = 0.0
+[grid]
+sizes = [32]
+variants = ["full", "no_point"]
+seeds = {seeds}
+references = ["random"]
+"#
+    )
+}
+
+fn run(file: &Path, store: &Path) -> Output {
+    let out = oneshot()
+        .args(["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "run failed: {}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// Stage kinds executed by the run whose stdout is `out`, from its summary line and the attempts table.
+fn executed(out: &Output) -> usize {
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().find(|l| l.contains("stages run")).expect("summary line");
+    line.split(':').nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap()
+}
+
+fn db(store: &Path) -> Connection {
+    Connection::open(store.join("oneshot.sqlite")).unwrap()
+}
+
+fn count(conn: &Connection, sql: &str) -> i64 {
+    conn.query_row(sql, [], |r| r.get(0)).unwrap()
+}
+
+#[test]
+fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
+    let dir = scratch("incremental");
+    let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
+    std::fs::write(&file, experiment("[0]", 90, 4)).unwrap();
+    // collect x2, train x2, eval x2, random eval.
+    assert_eq!(executed(&run(&file, &store)), 7);
+    assert_eq!(executed(&run(&file, &store)), 0, "an unchanged file runs nothing");
+
+    // Report numbers equal a direct aggregation, and regenerating gives identical files.
+    let report = store.join("reports/tiny");
+    let table = std::fs::read_to_string(report.join("table1.csv")).unwrap();
+    let conn = db(&store);
+    let placed_random: f64 = conn
+        .query_row(
+            "SELECT AVG(e.placed) FROM episodes e JOIN cells c ON c.eval_key = e.eval_key WHERE c.cell = 'random'",
+            [],
+            |r| r.get(0),
+        )
+        .unwrap();
+    let reached_full: f64 = conn
+        .query_row(
+            "SELECT AVG(e.reached) FROM episodes e JOIN cells c ON c.eval_key = e.eval_key WHERE c.cell = 'n32-full-s0'",
+            [],
+            |r| r.get(0),
+        )
+        .unwrap();
+    let row = |label: &str| {
+        table.lines().find(|l| l.starts_with(label)).unwrap().split(',').map(String::from).collect::<Vec<_>>()
+    };
+    let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    assert_eq!(row("random")[col("place")].parse::<f64>().unwrap(), placed_random);
+    assert_eq!(row("full @ 32")[col("reach")].parse::<f64>().unwrap(), reached_full);
+    let before: Vec<(PathBuf, Vec<u8>)> = files(&report);
+    let out = oneshot().args(["report", file.to_str().unwrap(), "--store", store.to_str().unwrap()]).output().unwrap();
+    assert!(out.status.success());
+    assert_eq!(before, files(&report), "a regenerated report is byte-identical");
+    assert!(before.iter().any(|(p, _)| p.ends_with("loss_curves.png")));
+
+    // A new seed: only that seed's two train and two eval stages.
+    std::fs::write(&file, experiment("[0, 1]", 90, 4)).unwrap();
+    assert_eq!(executed(&run(&file, &store)), 4);
+    // Replacing seed 1 by seed 2 re-runs exactly those cells' train and eval stages.
+    std::fs::write(&file, experiment("[0, 2]", 90, 4)).unwrap();
+    assert_eq!(executed(&run(&file, &store)), 4);
+
+    // A collection setting: both collections and everything below them (4 cells x train + eval), not the random
+    // reference.
+    std::fs::write(&file, experiment("[0, 2]", 80, 4)).unwrap();
+    assert_eq!(executed(&run(&file, &store)), 2 + 4 + 4);
+    let conn = db(&store);
+    assert_eq!(
+        count(
+            &conn,
+            "SELECT COUNT(*) FROM attempts WHERE stage_key IN (SELECT eval_key FROM cells WHERE cell = 'random')"
+        ),
+        1
+    );
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'done' AND artifact IS NULL"), 0);
+
+    // `why` explains the old collection against the new one.
+    // Pretend the two new collections are not cached yet: the nearest cached stage of the new Panda collection is
+    // the old Panda collection.
+    conn.execute(
+        "UPDATE stages SET status = 'planned' WHERE key IN
+         (SELECT key FROM stages WHERE kind = 'collect' ORDER BY created_at DESC LIMIT 2)",
+        [],
+    )
+    .unwrap();
+    let new_collect: String = conn
+        .query_row(
+            "SELECT key FROM stages WHERE kind = 'collect' AND status = 'planned' AND inputs LIKE '%panda%'",
+            [],
+            |r| r.get(0),
+        )
+        .unwrap();
+    let why = oneshot().args(["why", &new_collect[..10], "--store", store.to_str().unwrap()]).output().unwrap();
+    let text = String::from_utf8_lossy(&why.stdout);
+    assert!(text.contains("jpeg_quality: 90 (cached) -> 80 (this stage)"), "{text}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut v: Vec<(PathBuf, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| (p.clone(), std::fs::read(&p).unwrap()))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
+    let dir = scratch("kill");
+    let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
+    std::fs::write(&file, experiment("[0]", 90, 400)).unwrap();
+    let mut child = oneshot()
+        .args([
+            "run",
+            file.to_str().unwrap(),
+            "--store",
+            store.to_str().unwrap(),
+            "--workers",
+            "1",
+            "--only",
+            "n32-full-s0",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Wait until training has written a checkpoint, then kill -9.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(240);
+    let checkpoint_written = || {
+        std::fs::read_dir(store.join("artifacts/.staging")).into_iter().flatten().any(|e| {
+            let ck = e.unwrap().path().join("checkpoints");
+            std::fs::read_dir(ck).map(|mut d| d.next().is_some()).unwrap_or(false)
+        })
+    };
+    while !checkpoint_written() {
+        assert!(std::time::Instant::now() < deadline, "training never checkpointed");
+        assert!(child.try_wait().unwrap().is_none(), "run ended before it could be killed");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let conn = db(&store);
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE kind = 'train' AND status = 'done'"), 0);
+
+    let out = oneshot()
+        .args([
+            "run",
+            file.to_str().unwrap(),
+            "--store",
+            store.to_str().unwrap(),
+            "--workers",
+            "1",
+            "--only",
+            "n32-full-s0",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let conn = db(&store);
+    let train_key: String =
+        conn.query_row("SELECT train_key FROM cells WHERE cell = 'n32-full-s0'", [], |r| r.get(0)).unwrap_or_default();
+    let train_key = if train_key.is_empty() {
+        conn.query_row("SELECT key FROM stages WHERE kind = 'train' AND status = 'done'", [], |r| r.get(0)).unwrap()
+    } else {
+        train_key
+    };
+    let attempts: Vec<(String, Option<String>)> = conn
+        .prepare("SELECT status, error FROM attempts WHERE stage_key = ?1 ORDER BY id")
+        .unwrap()
+        .query_map([&train_key], |r| Ok((r.get(0)?, r.get(1)?)))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(attempts.len(), 2, "{attempts:?}");
+    assert_eq!(attempts[0].0, "failed");
+    assert!(attempts[0].1.as_deref().unwrap().contains("interrupted"));
+    assert_eq!(attempts[1].0, "done");
+    let artifact: String =
+        conn.query_row("SELECT artifact FROM stages WHERE key = ?1", [&train_key], |r| r.get(0)).unwrap();
+    let info = std::fs::read_to_string(Path::new(&artifact).join("model.json")).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&info).unwrap();
+    assert!(summary["resumed_from"].as_u64().unwrap() >= 20, "training resumed from its checkpoint: {summary}");
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'running'"), 0);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn two_concurrent_runs_execute_each_stage_once() {
+    let dir = scratch("concurrent");
+    let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
+    std::fs::write(&file, experiment("[0]", 90, 4)).unwrap();
+    let spawn = || {
+        oneshot()
+            .args(["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let (a, b) = (spawn(), spawn());
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    assert_eq!(executed(&a) + executed(&b), 7);
+    let conn = db(&store);
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM attempts"), 7);
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'done'"), 7);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn malformed_experiment_files_name_file_line_and_key() {
+    let dir = scratch("malformed");
+    let cases = [
+        ("[train]\nsteps = 10\n\nlearnin_rate = 0.1\n", &["bad.toml", "line 4", "learnin_rate"][..]),
+        ("[grid]\nsizes = [100]\n", &["bad.toml", "grid.sizes", "100"][..]),
+        ("[grid]\nvariants = [\"full\", \"nope\"]\n", &["bad.toml", "nope"][..]),
+        ("[variants.x]\ntrain.lr = -1.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "variant `x`", "train.lr"][..]),
+        ("[variants.x]\ntrain.los.inverse = 0.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "line 2", "los"][..]),
+        ("[eval]\nepisodes = \"many\"\n", &["bad.toml", "line 2", "episodes"][..]),
+    ];
+    for (text, needles) in cases {
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, text).unwrap();
+        let out = oneshot()
+            .args(["plan", path.to_str().unwrap(), "--store", dir.join("runs").to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        for n in needles {
+            assert!(err.contains(n), "{text:?}: missing {n:?} in {err}");
+        }
+    }
+    let store = dir.join("runs");
+    let out = oneshot()
+        .args(["plan", "experiments/smoke.toml", "--profile", "gpu", "--store", store.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no profile `gpu`"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
