@@ -1,7 +1,7 @@
 //! The `oneshot-lab` command line.
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use oneshot_lab::commands::{bench_world, contact_sheet, eval, expert_check, inspect, orchestrate};
+use oneshot_lab::commands::{bench, bench_world, contact_sheet, eval, expert_check, inspect, orchestrate};
 use oneshot_lab::data::collect::{CollectConfig, collect};
 use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::eval::summary::print_summary;
@@ -189,6 +189,34 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Training steps/s and peak memory of a configuration, beside its ResNet-18 trunk alone.
+    BenchTrain {
+        /// `paper` (240x320, batch 30) or `small` (the smoke network at 64x80, batch 8).
+        #[arg(long, default_value = "small")]
+        config: String,
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+        /// Override the configuration's batch size.
+        #[arg(long)]
+        batch: Option<usize>,
+        #[arg(long, default_value = "auto")]
+        device: String,
+    },
+    /// Evaluation rollouts/s on CPU for the small network and the random policy.
+    BenchEval {
+        #[arg(long, default_value_t = 16)]
+        episodes: usize,
+        #[arg(long, default_value_t = 40)]
+        horizon: usize,
+        #[arg(long)]
+        workers: Option<usize>,
+    },
+    /// Time of `plan` and of a fully cached `run` over a large grid.
+    BenchPlan {
+        /// Cells in the grid (stages are about twice as many).
+        #[arg(long, default_value_t = 200)]
+        cells: usize,
+    },
     /// A PNG of first frames of several instances for both robots.
     ContactSheet {
         #[arg(long, default_value = "contact_sheet.png")]
@@ -345,6 +373,15 @@ fn run(cli: Cli) -> Result<()> {
             oneshot_lab::report::write_report(&db, &experiment.name, &out)?;
             println!("wrote {}", out.join("index.md").display());
         }
+        Command::BenchTrain { config, steps, batch, device } => {
+            let mut c = bench::bench_config(&config)?;
+            c.batch = batch.unwrap_or(c.batch);
+            bench::bench_train(&c, steps.max(1), &device)?;
+        }
+        Command::BenchEval { episodes, horizon, workers } => {
+            bench::bench_eval(episodes.max(1), horizon.max(1), workers.unwrap_or_else(default_workers))?
+        }
+        Command::BenchPlan { cells } => bench::bench_plan(cells.max(1))?,
         Command::ContactSheet { out, instances, seed, frames } => {
             let world = frames.world();
             contact_sheet::contact_sheet(&out, instances, seed, &world)?;

@@ -1,6 +1,7 @@
 //! The policy network: causality, fitting a batch, checkpoints and configuration errors.
 use oneshot_lab::data::loader::DeviceBatch;
-use oneshot_lab::model::config::ModelConfig;
+use oneshot_lab::model::config::{Architecture, ModelConfig};
+use oneshot_lab::model::resnet::ResNet18;
 use oneshot_lab::model::transformer::TransformerPolicy;
 use oneshot_lab::train::config::LossWeights;
 use oneshot_lab::train::{TrainFile, build_policy, checkpoint, losses};
@@ -24,8 +25,14 @@ fn scratch(name: &str) -> std::path::PathBuf {
 
 #[test]
 fn a_future_agent_frame_does_not_change_earlier_outputs() {
+    for architecture in [Architecture::Transformer, Architecture::TemporalConv] {
+        future_frames_stay_invisible(ModelConfig { architecture, ..tiny() });
+    }
+}
+
+fn future_frames_stay_invisible(model: ModelConfig) {
     tch::manual_seed(0);
-    let (_vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
+    let (_vs, policy) = build_policy(&model, Device::Cpu).unwrap();
     let context = images(2, 4);
     let agent = images(2, 7);
     let changed = agent.copy();
@@ -85,6 +92,28 @@ fn a_checkpoint_round_trips_exactly_and_refuses_another_architecture() {
     let (mut vs3, _p): (nn::VarStore, TransformerPolicy) = build_policy(&wider, Device::Cpu).unwrap();
     let err = checkpoint::load(&mut vs3, &path).unwrap_err().to_string();
     assert!(err.contains("a.safetensors") && err.contains("backbone"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn pretrained_backbone_weights_load_by_torchvision_name() {
+    let dir = scratch("pretrained");
+    let path = dir.join("resnet18.safetensors");
+    tch::manual_seed(4);
+    let source = nn::VarStore::new(Device::Cpu);
+    let _trunk = ResNet18::new(&source.root(), 8);
+    source.save(&path).unwrap();
+    let names = source.variables();
+    assert!(names.contains_key("layer1.0.conv1.weight") && names.contains_key("layer4.1.bn2.running_var"));
+    let model = ModelConfig { pretrained_backbone: Some(path.to_string_lossy().into()), ..tiny() };
+    let (vs, _) = build_policy(&model, Device::Cpu).unwrap();
+    let loaded = vs.variables();
+    for (name, t) in &names {
+        assert!(t.equal(&loaded[&format!("backbone.{name}")]), "{name}");
+    }
+    let wrong = ModelConfig { backbone_width: 16, ..model };
+    let err = format!("{:#}", build_policy(&wrong, Device::Cpu).unwrap_err());
+    assert!(err.contains("resnet18.safetensors") && err.contains("pretrained_backbone"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -1,4 +1,5 @@
 //! The command-line tools, one module each.
+pub mod bench;
 pub mod bench_world;
 pub mod contact_sheet;
 pub mod eval;

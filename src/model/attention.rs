@@ -72,6 +72,55 @@ impl AttentionLayer {
     }
 }
 
+/// A spatio-temporal convolution block: 5x5x5 convolution (padded only towards the past when causal), ReLU,
+/// dropout, a residual and batch norm. Tokens in and out, like [`AttentionLayer`].
+#[derive(Debug)]
+pub struct ConvBlock {
+    conv: nn::Conv<[i64; 3]>,
+    norm: nn::BatchNorm,
+    causal: bool,
+    dropout: f64,
+}
+
+/// Temporal (and spatial) extent of the convolution.
+const CONV_KERNEL: i64 = 5;
+
+impl ConvBlock {
+    /// A block under `vs` over `channels` channels.
+    pub fn new(vs: &nn::Path, channels: i64, causal: bool, dropout: f64) -> ConvBlock {
+        let d = nn::ConvConfig::default();
+        let config = nn::ConvConfigND {
+            stride: [1, 1, 1],
+            padding: [0, CONV_KERNEL / 2, CONV_KERNEL / 2],
+            dilation: [1, 1, 1],
+            groups: 1,
+            bias: true,
+            ws_init: d.ws_init,
+            bs_init: d.bs_init,
+            padding_mode: d.padding_mode,
+        };
+        let k = [CONV_KERNEL; 3];
+        ConvBlock {
+            conv: nn::conv(vs / "conv", channels, channels, k, config),
+            norm: nn::batch_norm3d(vs / "norm", channels, Default::default()),
+            causal,
+            dropout,
+        }
+    }
+
+    /// Tokens `[B, T*h*w, C]` of `frames` frames of `h x w` to tokens of the same shape.
+    pub fn forward(&self, x: &Tensor, frames: i64, h: i64, w: i64, train: bool) -> Tensor {
+        let (b, _, c) = x.size3().expect("tokens are [B, N, C]");
+        let volume = x.view([b, frames, h, w, c]).permute([0, 4, 1, 2, 3]);
+        // Pad time only: all of it before the first frame when causal, split evenly otherwise.
+        let (past, future) = if self.causal { (CONV_KERNEL - 1, 0) } else { (CONV_KERNEL / 2, CONV_KERNEL / 2) };
+        let padded = volume.constant_pad_nd([0, 0, 0, 0, past, future]);
+        let y = padded.apply(&self.conv).relu().dropout(self.dropout, train);
+        let out = (volume + y).apply_t(&self.norm, train);
+        out.permute([0, 2, 3, 4, 1]).reshape([b, frames * h * w, c])
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

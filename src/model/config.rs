@@ -15,10 +15,22 @@ pub enum ContextMode {
     Final,
 }
 
+/// How frames exchange information (the architecture ablation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Architecture {
+    /// Non-local attention over all tokens of all frames (the paper's model).
+    #[default]
+    Transformer,
+    /// The paper's "no attention" ablation: causal 5x5x5 spatio-temporal convolution blocks instead.
+    TemporalConv,
+}
+
 /// Architecture and head sizes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelConfig {
+    pub architecture: Architecture,
     /// ResNet-18 base width (64 is the standard net; smaller widths for CPU runs).
     pub backbone_width: i64,
     /// Optional safetensors file of torchvision ResNet-18 weights (names like `layer1.0.conv1.weight`).
@@ -54,6 +66,7 @@ pub struct ModelConfig {
 impl Default for ModelConfig {
     fn default() -> Self {
         ModelConfig {
+            architecture: Architecture::Transformer,
             backbone_width: 64,
             pretrained_backbone: None,
             attention_layers: 2,

@@ -1,7 +1,7 @@
 //! The paper's policy: a ResNet-18 trunk per frame, positional encoding, causal non-local attention over
 //! [context frames, agent frames], frame and task embeddings, and the action, inverse-dynamics and point heads.
-use super::attention::{AttentionLayer, AttentionSpec, frame_causal_mask, positional_encoding};
-use super::config::ModelConfig;
+use super::attention::{AttentionLayer, AttentionSpec, ConvBlock, frame_causal_mask, positional_encoding};
+use super::config::{Architecture, ModelConfig};
 use super::heads::{EmbeddingMlp, PointHead, PointPrediction, spatial_softmax};
 use super::mixture::{MixtureHead, MixtureParams, MixtureSpec};
 use super::resnet::ResNet18;
@@ -19,14 +19,38 @@ pub struct PolicyOutput {
     pub point: PointPrediction,
 }
 
+/// A layer that mixes information across frames.
+#[derive(Debug)]
+enum Mixer {
+    Attention(AttentionLayer),
+    Conv(ConvBlock),
+}
+
+impl Mixer {
+    fn new(vs: &nn::Path, arch: Architecture, spec: AttentionSpec, causal: bool) -> Mixer {
+        match arch {
+            Architecture::Transformer => Mixer::Attention(AttentionLayer::new(vs, spec)),
+            Architecture::TemporalConv => Mixer::Conv(ConvBlock::new(vs, spec.channels, causal, spec.dropout)),
+        }
+    }
+
+    /// Tokens of `frames` frames of `h x w`; `mask` restricts attention (the convolution is causal by padding).
+    fn forward(&self, x: &Tensor, mask: Option<&Tensor>, (frames, h, w): (i64, i64, i64), train: bool) -> Tensor {
+        match self {
+            Mixer::Attention(a) => a.forward(x, mask, train),
+            Mixer::Conv(c) => c.forward(x, frames, h, w, train),
+        }
+    }
+}
+
 /// The transformer policy.
 #[derive(Debug)]
 pub struct TransformerPolicy {
     config: ModelConfig,
     trunk: ResNet18,
     dropout: f64,
-    causal: Vec<AttentionLayer>,
-    task_attention: AttentionLayer,
+    causal: Vec<Mixer>,
+    task_attention: Mixer,
     task_conv: nn::Conv<[i64; 3]>,
     frame_embed: EmbeddingMlp,
     task_embed: EmbeddingMlp,
@@ -48,7 +72,9 @@ impl TransformerPolicy {
             temperature: config.attention_temperature.unwrap_or((c as f64).sqrt()),
             dropout: config.dropout,
         };
-        let causal = (0..config.attention_layers).map(|i| AttentionLayer::new(&(vs / "attention" / i), spec)).collect();
+        let arch = config.architecture;
+        let causal =
+            (0..config.attention_layers).map(|i| Mixer::new(&(vs / "attention" / i), arch, spec, true)).collect();
         let d = nn::ConvConfig::default();
         let conv_config = nn::ConvConfigND {
             stride: [1, 1, 1],
@@ -66,7 +92,7 @@ impl TransformerPolicy {
             trunk,
             dropout: config.dropout,
             causal,
-            task_attention: AttentionLayer::new(&(vs / "task_attention"), spec),
+            task_attention: Mixer::new(&(vs / "task_attention"), arch, spec, false),
             task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv_config),
             frame_embed: EmbeddingMlp::new(&(vs / "frame_embed"), 2 * c, hidden, latent, config.dropout),
             task_embed: EmbeddingMlp::new(&(vs / "task_embed"), 2 * c, hidden, latent, config.dropout),
@@ -114,7 +140,7 @@ impl TransformerPolicy {
         x = (x + positional_encoding(t * hw, c, device).unsqueeze(0)).dropout(self.dropout, train);
         let mask = frame_causal_mask(t, hw, tc, device);
         for layer in &self.causal {
-            x = layer.forward(&x, Some(&mask), train);
+            x = layer.forward(&x, Some(&mask), (t, h, w), train);
         }
         let frames = x.view([b, t, h, w, c]).permute([0, 1, 4, 2, 3]);
 
@@ -124,7 +150,7 @@ impl TransformerPolicy {
 
         // Task embedding from the context and the first agent frame.
         let task_tokens = x.narrow(1, 0, (tc + 1) * hw);
-        let task_tokens = self.task_attention.forward(&task_tokens, None, train);
+        let task_tokens = self.task_attention.forward(&task_tokens, None, (tc + 1, h, w), train);
         let task_frames = task_tokens.view([b, tc + 1, h, w, c]).permute([0, 4, 1, 2, 3]);
         let pooled = task_frames.apply(&self.task_conv).mean_dim([2i64].as_slice(), false, tch::Kind::Float);
         let task = self.task_embed.forward_t(&spatial_softmax(&pooled), train);

@@ -4,6 +4,7 @@ use super::data::{CurveRow, ResultRow};
 use super::paper::paper_placed;
 use anyhow::{Context, Result};
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -49,9 +50,10 @@ where
     save(dir, name, &svg)
 }
 
-/// Bars of `placed` (with 95% whiskers) for every row that has results; the paper's value as a grey marker.
+/// Bars of `placed` (with 95% whiskers) for every row, `missing` written where a row has no results; the paper's
+/// value as a grey marker.
 pub fn success_bars(dir: &Path, rows: &[ResultRow]) -> Result<()> {
-    let shown: Vec<&ResultRow> = rows.iter().filter(|r| r.pooled.is_some()).collect();
+    let shown: Vec<&ResultRow> = rows.iter().collect();
     draw(dir, "success_by_configuration", |root| {
         let n = shown.len().max(1) as f64;
         let mut chart = ChartBuilder::on(&root)
@@ -80,8 +82,13 @@ pub fn success_bars(dir: &Path, rows: &[ResultRow]) -> Result<()> {
             .axis_desc_style(("sans-serif", 17))
             .draw()?;
         for (i, r) in shown.iter().enumerate() {
-            let p = r.pooled.expect("filtered")[2];
             let x = i as f64;
+            let Some(pooled) = r.pooled else {
+                let style = TextStyle::from(("sans-serif", 16).into_font()).pos(Pos::new(HPos::Center, VPos::Bottom));
+                chart.draw_series(std::iter::once(Text::new("missing", (x, 3.0), style)))?;
+                continue;
+            };
+            let p = pooled[2];
             chart.draw_series(std::iter::once(Rectangle::new(
                 [(x - 0.3, 0.0), (x + 0.3, 100.0 * p.value)],
                 PALETTE[0].mix(0.8).filled(),

@@ -69,6 +69,12 @@ pub fn path_for(dir: &Path, step: u64) -> PathBuf {
     dir.join(format!("step_{step:08}.safetensors"))
 }
 
+/// The optimiser state saved beside the weights at `weights` (written first, so a checkpoint whose weights exist
+/// has its state).
+pub fn optimizer_path(weights: &Path) -> PathBuf {
+    weights.with_extension("adam.safetensors")
+}
+
 /// The latest complete checkpoint in `dir` and its step.
 pub fn latest(dir: &Path) -> Result<Option<(u64, PathBuf)>> {
     if !dir.exists() {

@@ -1,5 +1,6 @@
 //! Training the policy: Adam on BC + inverse-dynamics + point losses, validation at fixed intervals,
 //! checkpoints with resume, and a loss curve.
+pub mod adam;
 pub mod checkpoint;
 pub mod config;
 pub mod curve;
@@ -12,13 +13,14 @@ use crate::model::mixture::mixture_nll;
 use crate::model::transformer::TransformerPolicy;
 use crate::seeds::derive_seed;
 use crate::sim::camera::ImageSize;
+use adam::Adam;
 use anyhow::{Context, Result};
 use config::{LossWeights, TrainConfig};
 use curve::CurvePoint;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::Arc;
-use tch::nn::{self, OptimizerConfig};
+use tch::nn;
 use tch::{Kind, Tensor};
 
 /// File names inside a training folder.
@@ -138,17 +140,18 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
 
     tch::manual_seed(derive_seed("init", &[config.seed]) as i64);
     let (mut vs, policy) = build_policy(model, device)?;
+    let mut opt = Adam::new(&vs, config.lr);
     let resumed = checkpoint::latest(&ckpt_dir)?;
     let start = match &resumed {
         Some((step, path)) => {
             checkpoint::load(&mut vs, path)?;
+            opt.load(&checkpoint::optimizer_path(path))?;
             *step
         }
         None => 0,
     };
     let curve_path = run.out.join(CURVE_FILE);
     let mut curve = curve::read(&curve_path, start)?;
-    let mut opt = nn::Adam::default().build(&vs, config.lr)?;
     let (h, w) = (data.height, data.width);
     let val: Vec<DeviceBatch> = (0..config.val_batches)
         .map(|k| {
@@ -173,9 +176,10 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let loader = Prefetcher::start(data.clone(), spec);
     let bar = crate::data::collect::progress_bar(config.steps, run.progress, "train");
     bar.set_position(start);
-    tch::manual_seed(derive_seed("dropout", &[config.seed, start]) as i64);
     let mut window = TrainWindow::default();
     for step in start + 1..=config.steps {
+        // Dropout draws depend on the step alone, so a resumed run repeats the uninterrupted one exactly.
+        tch::manual_seed(derive_seed("dropout", &[config.seed, step]) as i64);
         let batch: Batch = loader.next_batch()?;
         let l = losses(&policy, &batch.to_device(model, h, w, device), true);
         let total = l.total(&config.loss);
@@ -188,8 +192,10 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
             curve.push(v);
             curve::write(&curve_path, &curve)?;
         }
-        if step % config.checkpoint_interval == 0 && step != config.steps {
-            checkpoint::save(&vs, &checkpoint::path_for(&ckpt_dir, step))?;
+        if step % config.checkpoint_interval == 0 || step == config.steps {
+            let path = checkpoint::path_for(&ckpt_dir, step);
+            opt.save(&checkpoint::optimizer_path(&path))?;
+            checkpoint::save(&vs, &path)?;
         }
         bar.inc(1);
     }

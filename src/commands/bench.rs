@@ -1,0 +1,221 @@
+//! Benchmarks that print figures: training step rate and memory beside the trunk alone, evaluation rollouts per
+//! second, and the orchestrator's overhead on a large cached grid.
+use crate::data::loader::DeviceBatch;
+use crate::eval::{EvalConfig, EvalOutput, EvalPolicy, evaluate};
+use crate::model::config::ModelConfig;
+use crate::model::resnet::ResNet18;
+use crate::pipeline::graph::Plan;
+use crate::pipeline::store::Store;
+use crate::sim::camera::ImageSize;
+use crate::sim::env::WorldConfig;
+use crate::train::config::{LossWeights, TrainConfig, parse_device};
+use crate::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained, losses};
+use anyhow::{Context, Result, bail};
+use std::collections::HashSet;
+use std::time::Instant;
+use tch::nn::{ModuleT, OptimizerConfig};
+use tch::{Device, Kind, Tensor, nn};
+
+/// Model, frame size and batch of a benchmark configuration.
+pub struct BenchConfig {
+    pub name: &'static str,
+    pub model: ModelConfig,
+    pub image: ImageSize,
+    pub batch: usize,
+}
+
+/// `paper` (240x320, batch 30, the paper's network) or `small` (the smoke experiment's network at 64x80).
+pub fn bench_config(name: &str) -> Result<BenchConfig> {
+    Ok(match name {
+        "paper" => BenchConfig {
+            name: "paper",
+            model: ModelConfig::default(),
+            image: ImageSize { height: 240, width: 320 },
+            batch: 30,
+        },
+        "small" => BenchConfig {
+            name: "small",
+            model: ModelConfig { backbone_width: 16, attention_inner: 32, embed_hidden: 64, ..ModelConfig::default() },
+            image: ImageSize { height: 64, width: 80 },
+            batch: 8,
+        },
+        other => bail!("unknown benchmark configuration `{other}` (paper, small)"),
+    })
+}
+
+/// Peak resident memory of this process (kB), from /proc.
+fn peak_rss_kb() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+fn synthetic_batch(c: &BenchConfig, device: Device) -> DeviceBatch {
+    let (b, h, w) = (c.batch as i64, c.image.height as i64, c.image.width as i64);
+    let (tc, ta) = (c.model.context_len() as i64, c.model.agent_frames as i64);
+    let opts = (Kind::Float, device);
+    DeviceBatch {
+        context: Tensor::randn([b, tc, 3, h, w], opts),
+        agent: Tensor::randn([b, ta, 3, h, w], opts),
+        actions: Tensor::rand([b, ta - 1, 8], opts) * 2.0 - 1.0,
+        points: Tensor::rand([b, 2], opts) * 2.0 - 1.0,
+    }
+}
+
+fn sync(device: Device) {
+    if let Device::Cuda(i) = device {
+        tch::Cuda::synchronize(i as i64);
+    }
+}
+
+/// Times `steps` full training steps of the policy, then the trunk's forward + backward on the same frames.
+pub fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
+    let device = parse_device(device)?;
+    tch::manual_seed(0);
+    let batch = synthetic_batch(c, device);
+    let frames = c.batch * (c.model.context_len() + c.model.agent_frames);
+    println!(
+        "training benchmark `{}`: {}x{} frames, batch {} ({} frames per step), backbone width {}, device {:?}",
+        c.name, c.image.height, c.image.width, c.batch, frames, c.model.backbone_width, device
+    );
+
+    let (vs, policy) = build_policy(&c.model, device)?;
+    let mut opt = nn::Adam::default().build(&vs, 5e-4)?;
+    let weights = LossWeights::default();
+    let mut step = || opt.backward_step(&losses(&policy, &batch, true).total(&weights));
+    step();
+    sync(device);
+    let start = Instant::now();
+    for _ in 0..steps {
+        step();
+    }
+    sync(device);
+    let model_s = start.elapsed().as_secs_f64() / steps as f64;
+
+    let trunk_vs = nn::VarStore::new(device);
+    let trunk = ResNet18::new(&trunk_vs.root(), c.model.backbone_width);
+    let images = Tensor::cat(&[&batch.context, &batch.agent], 1).flatten(0, 1);
+    let trunk_step = || {
+        let loss = trunk.forward_t(&images, true).mean(Kind::Float);
+        loss.backward();
+        for v in trunk_vs.trainable_variables() {
+            let mut g = v.grad();
+            if g.defined() {
+                let _ = g.zero_();
+            }
+        }
+    };
+    trunk_step();
+    sync(device);
+    let start = Instant::now();
+    for _ in 0..steps {
+        trunk_step();
+    }
+    sync(device);
+    let trunk_s = start.elapsed().as_secs_f64() / steps as f64;
+
+    println!("  full training step     : {:>8.3} s/step  {:>7.2} steps/s", model_s, 1.0 / model_s);
+    println!("  trunk forward+backward : {:>8.3} s/step  {:>7.2} steps/s", trunk_s, 1.0 / trunk_s);
+    println!("  model on top of trunk  : {:>7.0}% of the step", 100.0 * (model_s - trunk_s).max(0.0) / model_s);
+    match (device, peak_rss_kb()) {
+        (Device::Cpu, Some(kb)) => println!("  peak memory (process)  : {:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
+        (Device::Cuda(_), _) => {
+            println!("  peak GPU memory        : see nvidia-smi (tch exposes no allocator statistics)")
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// Times evaluation of the `small` network (fresh weights: its speed does not depend on them), and of the random
+/// policy through the same path, with `workers` simulation threads.
+pub fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
+    let c = bench_config("small")?;
+    let dir = std::env::temp_dir().join(format!("oneshot-bench-eval-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    tch::manual_seed(0);
+    let (vs, _) = build_policy(&c.model, Device::Cpu)?;
+    checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS))?;
+    let summary = TrainSummary {
+        model: c.model.clone(),
+        train: TrainConfig::default(),
+        image: c.image,
+        steps: 0,
+        resumed_from: None,
+        first_val_bc: 0.0,
+        final_val_bc: 0.0,
+        seconds: 0.0,
+        parameters: 0,
+    };
+    std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary)?)?;
+    let trained = load_trained(&dir, Device::Cpu)?;
+    std::fs::remove_dir_all(&dir)?;
+
+    let world = WorldConfig { image: c.image, ..WorldConfig::default() };
+    let config = EvalConfig { episodes, horizon, batch: episodes, device: "cpu".into(), ..EvalConfig::default() };
+    println!(
+        "evaluation benchmark: {episodes} episodes x {horizon} steps, {}x{} frames, {workers} simulation threads, CPU",
+        c.image.height, c.image.width
+    );
+    for (name, policy) in [("small network", EvalPolicy::Network(&trained)), ("random policy", EvalPolicy::Random)] {
+        let start = Instant::now();
+        let results = evaluate(&policy, &world, &config, &HashSet::new(), workers, &EvalOutput { strips_dir: None })?;
+        let s = start.elapsed().as_secs_f64();
+        let steps: usize = results.iter().map(|r| r.steps).sum();
+        println!(
+            "  {name:<14}: {:>6.2} rollouts/s  {:>7.1} agent steps/s  ({s:.1} s, demonstrations included)",
+            episodes as f64 / s,
+            steps as f64 / s
+        );
+    }
+    Ok(())
+}
+
+/// Builds a grid of at least `cells` cells, marks every stage cached in a scratch store, then times the `plan`
+/// and `run` commands of this binary on it.
+pub fn bench_plan(cells: usize) -> Result<()> {
+    let dir = std::env::temp_dir().join(format!("oneshot-bench-plan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let variants = 10usize;
+    let seeds = cells.div_ceil(2 * variants);
+    let mut text =
+        String::from("name = \"bench_plan\"\n[grid]\nsizes = [480, 1600]\nreferences = [\"expert\", \"random\"]\n");
+    text += &format!("seeds = [{}]\n", (0..seeds).map(|s| s.to_string()).collect::<Vec<_>>().join(", "));
+    let names: Vec<String> = (0..variants).map(|v| format!("\"v{v}\"")).collect();
+    text += &format!("variants = [{}]\n", names.join(", "));
+    for v in 0..variants {
+        text += &format!("[variants.v{v}]\ntrain.lr = {}\n", 1e-4 * (v + 1) as f64);
+    }
+    let file = dir.join("bench_plan.toml");
+    std::fs::write(&file, text)?;
+    let store_dir = dir.join("runs");
+    let experiment = crate::config::Experiment::load(&file, None)?;
+    let plan = Plan::build(&experiment);
+    let mut store = Store::open(&store_dir)?;
+    store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
+    // Benchmark set-up only: every stage is marked finished with an empty artifact folder.
+    for (i, k) in plan.order.iter().enumerate() {
+        let artifact = store_dir.join("artifacts").join(i.to_string());
+        std::fs::create_dir_all(&artifact)?;
+        store.conn().execute(
+            "UPDATE stages SET status = 'done', artifact = ?2, seconds = 1.0 WHERE key = ?1",
+            rusqlite::params![k, artifact.to_string_lossy()],
+        )?;
+    }
+    println!("orchestrator benchmark: {} cells, {} stages, all cached", plan.cells.len(), plan.stages.len());
+    let exe = std::env::current_exe()?;
+    for cmd in ["plan", "run"] {
+        let start = Instant::now();
+        let out = std::process::Command::new(&exe)
+            .args([cmd, &file.to_string_lossy(), "--store", &store_dir.to_string_lossy()])
+            .output()?;
+        let s = start.elapsed().as_secs_f64();
+        if !out.status.success() {
+            bail!("`{cmd}` failed: {}", String::from_utf8_lossy(&out.stderr));
+        }
+        let what = if cmd == "run" { "whole command, report included" } else { "whole command" };
+        println!("  {cmd:<4}: {s:.3} s ({what})");
+    }
+    std::fs::remove_dir_all(&dir)?;
+    Ok(())
+}
