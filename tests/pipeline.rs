@@ -280,6 +280,10 @@ fn malformed_experiment_files_name_file_line_and_key() {
         ("[variants.x]\ntrain.lr = -1.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "variant `x`", "train.lr"][..]),
         ("[variants.x]\ntrain.los.inverse = 0.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "line 2", "los"][..]),
         ("[eval]\nepisodes = \"many\"\n", &["bad.toml", "line 2", "episodes"][..]),
+        (
+            "[variants.lstm]\nmodel.architecture = \"contextual_lstm\"\n[grid]\nvariants = [\"lstm\"]\n",
+            &["bad.toml", "variant `lstm`", "train.loss.inverse"][..],
+        ),
     ];
     for (text, needles) in cases {
         let path = dir.join("bad.toml");

@@ -262,6 +262,7 @@ fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<Ce
     check(config.model.validate())?;
     check(config.train.validate())?;
     check(config.eval.validate())?;
+    check(crate::train::config::check_heads(&config.model, &config.train))?;
     if config.collect.tasks.is_empty() || config.collect.tasks.iter().any(|&t| t >= NUM_TASKS) {
         bail!("{file}: in {what}: collect.tasks must list task ids 0..{}", NUM_TASKS - 1);
     }

@@ -24,6 +24,8 @@ pub enum Architecture {
     Transformer,
     /// The paper's "no attention" ablation: causal 5x5x5 spatio-temporal convolution blocks instead.
     TemporalConv,
+    /// The paper's Contextual-LSTM baseline (behaviour cloning only: no inverse or point head).
+    ContextualLstm,
 }
 
 /// Architecture and head sizes.
@@ -51,6 +53,8 @@ pub struct ModelConfig {
     pub policy_hidden: i64,
     /// Hidden width of the point head.
     pub point_hidden: i64,
+    /// State width of the Contextual-LSTM baseline's encoder and decoder.
+    pub lstm_hidden: i64,
     /// Logistic mixture components per action dimension.
     pub mixtures: i64,
     /// Discretisation bins of each action dimension.
@@ -78,6 +82,7 @@ impl Default for ModelConfig {
             latent: 40,
             policy_hidden: 32,
             point_hidden: 40,
+            lstm_hidden: 256,
             mixtures: 2,
             bins: 256,
             log_scale_min: -7.0,
@@ -108,6 +113,7 @@ impl ModelConfig {
             ("latent", self.latent),
             ("policy_hidden", self.policy_hidden),
             ("point_hidden", self.point_hidden),
+            ("lstm_hidden", self.lstm_hidden),
             ("mixtures", self.mixtures),
         ];
         for (key, v) in positive {

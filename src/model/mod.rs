@@ -2,6 +2,8 @@
 pub mod attention;
 pub mod config;
 pub mod heads;
+pub mod lstm;
 pub mod mixture;
+pub mod policy;
 pub mod resnet;
 pub mod transformer;

@@ -13,10 +13,21 @@ use tch::nn::{self, Module, ModuleT};
 pub struct PolicyOutput {
     /// Action distribution at every agent frame: `[B, Ta, 8, mixtures]`.
     pub actions: MixtureParams,
-    /// Inverse-dynamics distribution for each consecutive pair of agent frames: `[B, Ta - 1, 8, mixtures]`.
-    pub inverse: MixtureParams,
-    /// End-effector pixel at the end of the window.
-    pub point: PointPrediction,
+    /// Inverse-dynamics distribution for each consecutive pair of agent frames: `[B, Ta - 1, 8, mixtures]`
+    /// (architectures without the head: none).
+    pub inverse: Option<MixtureParams>,
+    /// End-effector pixel at the end of the window (architectures without the head: none).
+    pub point: Option<PointPrediction>,
+}
+
+/// The action distribution's settings for `config`.
+pub fn mixture_spec(config: &ModelConfig) -> MixtureSpec {
+    MixtureSpec {
+        dims: ACTION_DIM as i64,
+        mixtures: config.mixtures,
+        bins: config.bins,
+        log_scale_min: config.log_scale_min,
+    }
 }
 
 /// A layer that mixes information across frames.
@@ -28,9 +39,10 @@ enum Mixer {
 
 impl Mixer {
     fn new(vs: &nn::Path, arch: Architecture, spec: AttentionSpec, causal: bool) -> Mixer {
-        match arch {
-            Architecture::Transformer => Mixer::Attention(AttentionLayer::new(vs, spec)),
-            Architecture::TemporalConv => Mixer::Conv(ConvBlock::new(vs, spec.channels, causal, spec.dropout)),
+        if arch == Architecture::TemporalConv {
+            Mixer::Conv(ConvBlock::new(vs, spec.channels, causal, spec.dropout))
+        } else {
+            Mixer::Attention(AttentionLayer::new(vs, spec))
         }
     }
 
@@ -46,7 +58,6 @@ impl Mixer {
 /// The transformer policy.
 #[derive(Debug)]
 pub struct TransformerPolicy {
-    config: ModelConfig,
     trunk: ResNet18,
     dropout: f64,
     causal: Vec<Mixer>,
@@ -88,7 +99,6 @@ impl TransformerPolicy {
         };
         let (hidden, latent) = (config.embed_hidden, config.latent);
         TransformerPolicy {
-            config: config.clone(),
             trunk,
             dropout: config.dropout,
             causal,
@@ -98,24 +108,9 @@ impl TransformerPolicy {
             task_embed: EmbeddingMlp::new(&(vs / "task_embed"), 2 * c, hidden, latent, config.dropout),
             policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
             inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
-            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, Self::mixture_spec(config)),
+            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, mixture_spec(config)),
             point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
         }
-    }
-
-    /// The action distribution's settings for `config`.
-    pub fn mixture_spec(config: &ModelConfig) -> MixtureSpec {
-        MixtureSpec {
-            dims: ACTION_DIM as i64,
-            mixtures: config.mixtures,
-            bins: config.bins,
-            log_scale_min: config.log_scale_min,
-        }
-    }
-
-    /// The settings this network was built with.
-    pub fn config(&self) -> &ModelConfig {
-        &self.config
     }
 
     /// Trunk features `[B, T, C, h, w]` of normalised images `[B, T, 3, H, W]`.
@@ -161,8 +156,8 @@ impl TransformerPolicy {
         let inv_hidden = self.inverse.forward(&pairs).relu();
         PolicyOutput {
             actions: self.action_head.forward(&hidden),
-            inverse: self.action_head.forward(&inv_hidden),
-            point: self.point_head.forward(&task),
+            inverse: Some(self.action_head.forward(&inv_hidden)),
+            point: Some(self.point_head.forward(&task)),
         }
     }
 }

@@ -26,8 +26,9 @@ pub struct CellRow {
     pub eval_key: String,
     /// None when the evaluation has not finished.
     pub counts: Option<Counts>,
-    /// The model's context mode, from the train stage's inputs.
+    /// The model's context mode and architecture, from the train stage's inputs.
     pub context: Option<String>,
+    pub architecture: Option<String>,
 }
 
 /// A row of a results table: one policy configuration over its seeds.
@@ -39,6 +40,7 @@ pub struct ResultRow {
     pub size: Option<usize>,
     pub variant: Option<String>,
     pub context: Option<String>,
+    pub architecture: Option<String>,
     /// Seeds with finished evaluations, and seeds in the grid.
     pub seeds_done: usize,
     pub seeds_total: usize,
@@ -56,7 +58,7 @@ pub fn cells(store: &Store, experiment: &str) -> Result<Vec<CellRow>> {
     let conn = store.conn();
     let mut stmt = conn.prepare(
         "SELECT c.cell, c.policy, c.size, c.variant, c.seed, c.train_key, c.eval_key, s.status,
-                json_extract(t.inputs, '$.model.context')
+                json_extract(t.inputs, '$.model.context'), json_extract(t.inputs, '$.model.architecture')
          FROM cells c LEFT JOIN stages s ON s.key = c.eval_key LEFT JOIN stages t ON t.key = c.train_key
          WHERE c.experiment = ?1 ORDER BY c.rowid",
     )?;
@@ -73,6 +75,7 @@ pub fn cells(store: &Store, experiment: &str) -> Result<Vec<CellRow>> {
                     eval_key: r.get(6)?,
                     counts: None,
                     context: r.get(8)?,
+                    architecture: r.get(9)?,
                 },
                 r.get::<_, Option<String>>(7)?,
             ))
@@ -125,6 +128,7 @@ pub fn rows(cells: &[CellRow]) -> Vec<ResultRow> {
                     size: c.size,
                     variant: c.variant.clone(),
                     context: c.context.clone(),
+                    architecture: c.architecture.clone(),
                     seeds_done: 0,
                     seeds_total: 0,
                     pooled: None,

@@ -31,6 +31,11 @@ impl Adam {
         Adam { lr, step: 0, params }
     }
 
+    /// Changes the learning rate.
+    pub fn set_lr(&mut self, lr: f64) {
+        self.lr = lr;
+    }
+
     /// Back-propagates `loss` and applies one update.
     pub fn backward_step(&mut self, loss: &Tensor) {
         for (_, p, _, _) in &self.params {

@@ -1,4 +1,5 @@
 //! Training settings, with the paper's values as defaults.
+use crate::model::config::{Architecture, ModelConfig};
 use anyhow::{Result, bail};
 use serde::{Deserialize, Serialize};
 use tch::Device;
@@ -107,4 +108,15 @@ pub fn parse_device(name: &str) -> Result<Device> {
             None => bail!("device = {name:?}: expected auto, cpu, cuda or cuda:N"),
         },
     })
+}
+
+/// Checks that every weighted loss has a head in the architecture (the Contextual-LSTM has only the action head).
+pub fn check_heads(model: &ModelConfig, train: &TrainConfig) -> Result<()> {
+    if model.architecture == Architecture::ContextualLstm && (train.loss.inverse != 0.0 || train.loss.point != 0.0) {
+        bail!(
+            "model.architecture = \"contextual_lstm\" has no inverse-dynamics or point head: \
+             set train.loss.inverse and train.loss.point to 0"
+        );
+    }
+    Ok(())
 }

@@ -10,7 +10,8 @@ use crate::data::pairs::{PairDataset, Split};
 use crate::model::config::ModelConfig;
 use crate::model::heads::point_nll;
 use crate::model::mixture::mixture_nll;
-use crate::model::transformer::TransformerPolicy;
+use crate::model::policy::Policy;
+use crate::model::transformer::mixture_spec;
 use crate::seeds::derive_seed;
 use crate::sim::camera::ImageSize;
 use adam::Adam;
@@ -44,9 +45,11 @@ impl Losses {
 }
 
 /// Computes all three losses of `policy` on a batch.
-pub fn losses(policy: &TransformerPolicy, batch: &DeviceBatch, train: bool) -> Losses {
+/// Losses of heads the architecture lacks are zero.
+pub fn losses(policy: &Policy, batch: &DeviceBatch, train: bool) -> Losses {
     let out = policy.forward_t(&batch.context, &batch.agent, train);
-    let spec = TransformerPolicy::mixture_spec(policy.config());
+    let spec = mixture_spec(policy.config());
+    let zero = || Tensor::zeros([], (Kind::Float, batch.actions.device()));
     let steps = batch.actions.size()[1];
     let narrow = |p: &crate::model::mixture::MixtureParams| crate::model::mixture::MixtureParams {
         means: p.means.narrow(1, 0, steps),
@@ -55,8 +58,8 @@ pub fn losses(policy: &TransformerPolicy, batch: &DeviceBatch, train: bool) -> L
     };
     Losses {
         bc: mixture_nll(&narrow(&out.actions), &batch.actions, spec),
-        inverse: mixture_nll(&out.inverse, &batch.actions, spec),
-        point: point_nll(&out.point, &batch.points),
+        inverse: out.inverse.as_ref().map_or_else(zero, |p| mixture_nll(p, &batch.actions, spec)),
+        point: out.point.as_ref().map_or_else(zero, |p| point_nll(p, &batch.points)),
     }
 }
 
@@ -76,10 +79,10 @@ pub struct TrainSummary {
 }
 
 /// Builds a policy with fresh weights (and the optional pretrained trunk) on `device`.
-pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::VarStore, TransformerPolicy)> {
+pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::VarStore, Policy)> {
     model.validate()?;
     let mut vs = nn::VarStore::new(device);
-    let policy = TransformerPolicy::new(&vs.root(), model);
+    let policy = Policy::new(&vs.root(), model);
     if let Some(path) = &model.pretrained_backbone {
         checkpoint::load_backbone(&mut vs, Path::new(path)).context("model.pretrained_backbone")?;
     }
@@ -89,7 +92,7 @@ pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::Var
 /// A trained policy ready for inference.
 pub struct TrainedPolicy {
     pub vars: nn::VarStore,
-    pub policy: TransformerPolicy,
+    pub policy: Policy,
     pub summary: TrainSummary,
 }
 
@@ -105,7 +108,7 @@ pub fn load_trained(dir: &Path, device: tch::Device) -> Result<TrainedPolicy> {
     Ok(TrainedPolicy { vars, policy, summary })
 }
 
-fn mean_losses(policy: &TransformerPolicy, batches: &[DeviceBatch], w: &LossWeights, step: u64) -> CurvePoint {
+fn mean_losses(policy: &Policy, batches: &[DeviceBatch], w: &LossWeights, step: u64) -> CurvePoint {
     let n = batches.len() as f64;
     let (mut bc, mut inv, mut pnt, mut total) = (0.0, 0.0, 0.0, 0.0);
     tch::no_grad(|| {
@@ -132,6 +135,7 @@ pub struct TrainRun<'a> {
 pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Result<TrainSummary> {
     model.validate()?;
     config.validate()?;
+    config::check_heads(model, config)?;
     let device = config.device()?;
     let data = Arc::new(PairDataset::open(run.demo_dir, run.agent_dir, config.val_fraction)?);
     data.check_fits(model)?;

@@ -1,0 +1,65 @@
+//! The Contextual-LSTM baseline of the paper: per-frame ResNet-18 + spatial softmax + MLP embeddings, an encoder
+//! LSTM over the context, and a decoder LSTM over the agent's frames that attends over the encoded context and its
+//! own past states; the same action head. Trained with behaviour cloning only.
+use super::config::ModelConfig;
+use super::heads::{EmbeddingMlp, spatial_softmax};
+use super::mixture::MixtureHead;
+use super::resnet::ResNet18;
+use super::transformer::mixture_spec;
+use tch::nn::{self, Module, ModuleT, RNN};
+use tch::{Kind, Tensor};
+
+/// The baseline network.
+#[derive(Debug)]
+pub struct ContextualLstm {
+    trunk: ResNet18,
+    embed: EmbeddingMlp,
+    encoder: nn::LSTM,
+    decoder: nn::LSTM,
+    policy: nn::Linear,
+    action_head: MixtureHead,
+}
+
+impl ContextualLstm {
+    /// Builds the network under `vs`.
+    pub fn new(vs: &nn::Path, config: &ModelConfig) -> ContextualLstm {
+        let trunk = ResNet18::new(&(vs / "backbone"), config.backbone_width);
+        let c = trunk.out_channels();
+        let (latent, hidden) = (config.latent, config.lstm_hidden);
+        let rnn = nn::RNNConfig { batch_first: true, ..Default::default() };
+        ContextualLstm {
+            trunk,
+            embed: EmbeddingMlp::new(&(vs / "frame_embed"), 2 * c, config.embed_hidden, latent, config.dropout),
+            encoder: nn::lstm(vs / "encoder", latent, hidden, rnn),
+            decoder: nn::lstm(vs / "decoder", latent, hidden, rnn),
+            policy: nn::linear(vs / "policy", 2 * hidden, config.policy_hidden, Default::default()),
+            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, mixture_spec(config)),
+        }
+    }
+
+    fn embed_frames(&self, images: &Tensor, train: bool) -> Tensor {
+        let s = images.size();
+        let f = self.trunk.forward_t(&images.view([s[0] * s[1], s[2], s[3], s[4]]), train);
+        self.embed.forward_t(&spatial_softmax(&f), train).view([s[0], s[1], -1])
+    }
+
+    /// Action distributions `[B, Ta, 8, mixtures]` for `context` `[B, Tc, 3, H, W]` and `agent` `[B, Ta, 3, H, W]`;
+    /// agent step t depends on the context and agent frames 0..=t only.
+    pub fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> super::mixture::MixtureParams {
+        let (tc, ta) = (context.size()[1], agent.size()[1]);
+        let (encoded, state) = self.encoder.seq(&self.embed_frames(context, train));
+        let (decoded, _) = self.decoder.seq_init(&self.embed_frames(agent, train), &state);
+        // Each decoder step attends over every context step and the decoder steps up to itself.
+        let memory = Tensor::cat(&[&encoded, &decoded], 1);
+        let scale = (decoded.size()[2] as f64).sqrt();
+        let scores = decoded.matmul(&memory.transpose(1, 2)) / scale;
+        let device = scores.device();
+        let q = Tensor::arange(ta, (Kind::Int64, device)).unsqueeze(1);
+        let k = Tensor::arange(tc + ta, (Kind::Int64, device)).unsqueeze(0);
+        let visible = k.lt(tc).logical_or(&(k - tc).le_tensor(&q));
+        let attended =
+            scores.masked_fill(&visible.logical_not(), f64::NEG_INFINITY).softmax(-1, Kind::Float).matmul(&memory);
+        let hidden = self.policy.forward(&Tensor::cat(&[decoded, attended], -1)).relu();
+        self.action_head.forward(&hidden)
+    }
+}
