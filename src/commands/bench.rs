@@ -168,6 +168,9 @@ pub fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()>
             steps as f64 / s
         );
     }
+    if let Some(kb) = peak_rss_kb() {
+        println!("  peak memory (process): {:.2} GiB", kb as f64 / (1024.0 * 1024.0));
+    }
     Ok(())
 }
 

@@ -3,13 +3,14 @@
 //! locally (the scripted expert, the random policy).
 use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
+use crate::sim::camera::Camera;
 use crate::sim::env::{Env, WorldConfig};
 use crate::sim::expert::Expert;
 use crate::sim::robot::Robot;
 use crate::sim::rollout::run_expert;
 use crate::sim::stages::Stages;
 use crate::sim::task::{Instance, Task};
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::sync::mpsc::{Receiver, Sender, channel};
@@ -88,14 +89,20 @@ struct Worker {
     spec: WorkerSpec,
     demo_env: Env,
     slots: Vec<Slot>,
+    /// One renderer for all agent scenes of this worker.
+    camera: Option<Camera>,
 }
 
 impl Worker {
     fn start(&mut self, specs: Vec<EpisodeSpec>) -> Result<Vec<Started>> {
         while self.slots.len() < specs.len() {
-            let env = Env::new(Robot::Panda, &self.spec.world, true)?;
+            let env = Env::new(Robot::Panda, &self.spec.world, false)?;
+            if self.camera.is_none() {
+                self.camera = Some(env.new_camera()?);
+            }
             self.slots.push(Slot { env, expert: None, rng: ChaCha8Rng::seed_from_u64(0) });
         }
+        let camera = self.camera.as_mut().expect("made with the first slot");
         let mut out = Vec::with_capacity(specs.len());
         for (slot, spec) in self.slots.iter_mut().zip(&specs) {
             let task = Task::from_id(spec.task)?;
@@ -103,13 +110,14 @@ impl Worker {
             slot.env.reset(&Instance::sample(task, spec.agent_seed));
             slot.expert = (self.spec.chooser == Chooser::Expert).then(|| Expert::new(&slot.env));
             slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
-            out.push(Started { demo_frames, demo_seed, frame: slot.env.render()? });
+            out.push(Started { demo_frames, demo_seed, frame: slot.env.render_with(camera)? });
         }
         Ok(out)
     }
 
     fn step(&mut self, commands: Vec<Option<Option<Action>>>) -> Result<Vec<Stepped>> {
         let mut out = Vec::with_capacity(commands.len());
+        let camera = self.camera.as_mut().context("step before start")?;
         for (slot, command) in self.slots.iter_mut().zip(commands) {
             let Some(given) = command else {
                 out.push(Stepped { frame: Vec::new(), stages: slot.env.stages() });
@@ -125,7 +133,7 @@ impl Worker {
                 (None, Chooser::Central) => bail!("central chooser sent no action"),
             };
             slot.env.step(&action);
-            out.push(Stepped { frame: slot.env.render()?, stages: slot.env.stages() });
+            out.push(Stepped { frame: slot.env.render_with(camera)?, stages: slot.env.stages() });
         }
         Ok(out)
     }
@@ -160,7 +168,7 @@ impl WorkerPool {
                         return;
                     }
                 };
-                let mut worker = Worker { spec, demo_env, slots: Vec::new() };
+                let mut worker = Worker { spec, demo_env, slots: Vec::new(), camera: None };
                 for command in commands {
                     let reply = match command {
                         Command::Start(specs) => Reply::Started(worker.start(specs)),

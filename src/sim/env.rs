@@ -215,6 +215,17 @@ impl Env {
         }
     }
 
+    /// A camera for scenes of this robot and settings: one camera can render every env built alike (their models
+    /// share a layout), which saves a renderer per env.
+    pub fn new_camera(&self) -> Result<Camera> {
+        Camera::new(self.data.model(), self.ids.camera, self.config.image, self.config.visuals)
+    }
+
+    /// Renders this scene's frame with `camera` (made by [`Env::new_camera`] of an env built alike).
+    pub fn render_with(&mut self, camera: &mut Camera) -> Result<Vec<u8>> {
+        camera.render(&mut self.data)
+    }
+
     /// Renders the camera frame (`height * width * 3` RGB bytes); errors if the env was built without one.
     pub fn render(&mut self) -> Result<Vec<u8>> {
         match self.camera.as_mut() {
