@@ -6,6 +6,7 @@ use oneshot_lab::data::collect::{CollectConfig, collect};
 use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::eval::summary::print_summary;
 use oneshot_lab::pipeline::scheduler::RunOptions;
+use oneshot_lab::pipeline::slurm::SlurmOptions;
 use oneshot_lab::pipeline::store::Store;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
@@ -143,6 +144,26 @@ enum Command {
         /// CUDA device indices, one per concurrent network stage (e.g. 0,1).
         #[arg(long, value_delimiter = ',')]
         gpus: Vec<usize>,
+        /// Run each stage as a Slurm job (`sbatch --wait`); `--jobs` bounds jobs in flight.
+        #[arg(long)]
+        slurm: bool,
+        /// Extra sbatch argument for every job (repeatable), e.g. --slurm-arg=--partition=cpu.
+        #[arg(long = "slurm-arg", allow_hyphen_values = true)]
+        slurm_args: Vec<String>,
+        /// Extra sbatch argument for network stages (repeatable), e.g. --slurm-gpu-arg=--gres=gpu:1.
+        #[arg(long = "slurm-gpu-arg", allow_hyphen_values = true)]
+        slurm_gpu_args: Vec<String>,
+    },
+    /// Runs one stage of an experiment (what a Slurm job executes); records nothing in the store.
+    #[command(hide = true)]
+    RunStage {
+        file: PathBuf,
+        #[arg(long)]
+        key: String,
+        #[command(flatten)]
+        store: StoreArgs,
+        #[arg(long)]
+        workers: Option<usize>,
     },
     /// The grid as cells x stages: cached, to run or failed, with an estimate of the time left.
     Plan {
@@ -341,8 +362,15 @@ fn run(cli: Cli) -> Result<()> {
             let (_, summary) = eval::run_eval(&policy, &frames.world(), &config, &exclude, workers, out.as_deref())?;
             print_summary(&summary);
         }
-        Command::Run { file, store, jobs, workers, only, force, dry_run, gpus } => {
+        Command::Run { file, store, jobs, workers, only, force, dry_run, gpus, slurm, slurm_args, slurm_gpu_args } => {
+            let slurm = slurm.then(|| SlurmOptions {
+                file: file.clone(),
+                profile: store.profile.clone(),
+                args: slurm_args,
+                gpu_args: slurm_gpu_args,
+            });
             let opts = RunOptions {
+                slurm,
                 jobs,
                 only,
                 force,
@@ -352,6 +380,15 @@ fn run(cli: Cli) -> Result<()> {
                 progress: true,
             };
             orchestrate::run_experiment(&file, store.profile.as_deref(), &store.store, &opts)?;
+        }
+        Command::RunStage { file, key, store, workers } => {
+            let (_, plan) = orchestrate::load_plan(&file, store.profile.as_deref())?;
+            oneshot_lab::pipeline::slurm::run_stage(
+                &plan,
+                &key,
+                &store.store,
+                workers.unwrap_or_else(default_workers),
+            )?;
         }
         Command::Plan { file, store } => orchestrate::print_plan(&file, store.profile.as_deref(), &store.store)?,
         Command::Why { stage, store } => inspect::why(&store, &stage)?,

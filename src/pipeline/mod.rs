@@ -3,4 +3,5 @@ pub mod execute;
 pub mod graph;
 pub mod key;
 pub mod scheduler;
+pub mod slurm;
 pub mod store;

@@ -2,6 +2,7 @@
 //! that concurrent runs never execute a stage twice; a failure stops only the stages below it.
 use super::execute::{ExecContext, execute};
 use super::graph::{EvalTarget, Job, Plan, Stage, short};
+use super::slurm::{SlurmOptions, run_job};
 use super::store::{Claim, StageResults, StageState, Store};
 use anyhow::Result;
 use std::collections::{HashMap, HashSet};
@@ -25,6 +26,8 @@ pub struct RunOptions {
     pub workers: usize,
     /// Show each stage's own progress bar (only sensible with one job).
     pub progress: bool,
+    /// Submit stages to Slurm instead of running them in this process.
+    pub slurm: Option<SlurmOptions>,
 }
 
 /// What a run did.
@@ -207,11 +210,14 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
                         artifacts,
                         workers: opts.workers.max(1),
                         device: gpu.clone(),
-                        progress: opts.progress && jobs == 1,
+                        progress: opts.progress && jobs == 1 && opts.slurm.is_none(),
                     };
-                    let (tx, stage, key) = (tx.clone(), stage.clone(), k.clone());
+                    let (tx, stage, key, slurm) = (tx.clone(), stage.clone(), k.clone(), opts.slurm.clone());
                     std::thread::spawn(move || {
-                        let result = execute(&stage, &ctx);
+                        let result = match &slurm {
+                            Some(s) => run_job(&stage, &ctx, s),
+                            None => execute(&stage, &ctx),
+                        };
                         let _ = tx.send((key, attempt, gpu, result));
                     });
                     status.insert(k.clone(), Status::Running);

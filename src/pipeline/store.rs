@@ -319,7 +319,7 @@ impl Store {
 }
 
 /// What a finished stage adds to the store.
-#[derive(Default)]
+#[derive(Default, serde::Serialize, serde::Deserialize)]
 pub struct StageResults {
     pub episodes: Vec<EpisodeResult>,
     pub metrics: Vec<(String, f64)>,
