@@ -64,11 +64,11 @@ pub fn run_job(stage: &Stage, ctx: &ExecContext, opts: &SlurmOptions) -> Result<
         let tail: Vec<String> =
             std::fs::read_to_string(&log).unwrap_or_default().lines().rev().take(5).map(String::from).collect();
         bail!(
-            "Slurm job for stage {} failed ({}): {}{}",
+            "Slurm job for stage {} failed ({}): {} (log: {})",
             short(&stage.key),
             String::from_utf8_lossy(&out.stderr).trim(),
             tail.into_iter().rev().collect::<Vec<_>>().join(" | "),
-            format!(" (log: {})", log.display())
+            log.display()
         );
     }
     let artifact = artifact_dir(&root, stage.kind, &stage.key);
