@@ -153,6 +153,31 @@ fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
     let why = oneshot().args(["why", &new_collect[..10], "--store", store.to_str().unwrap()]).output().unwrap();
     let text = String::from_utf8_lossy(&why.stdout);
     assert!(text.contains("jpeg_quality: 90 (cached) -> 80 (this stage)"), "{text}");
+    conn.execute("UPDATE stages SET status = 'done' WHERE status = 'planned' AND artifact IS NOT NULL", []).unwrap();
+
+    // plan, status and query read the same store.
+    let cli = |args: &[&str]| {
+        let out = oneshot().args(args).args(["--store", store.to_str().unwrap()]).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    assert!(cli(&["plan", file.to_str().unwrap()]).contains("0 stages to run"));
+    assert!(cli(&["status"]).contains("done"));
+    let cells: serde_json::Value = serde_json::from_str(&cli(&["query", "cells", "--format", "json"])).unwrap();
+    assert_eq!(cells.as_array().unwrap().len(), 5, "2 variants x 2 seeds + the random reference");
+    let csv = cli(&["query", "SELECT COUNT(*) AS n FROM stages WHERE kind = 'collect'", "--format", "csv"]);
+    assert_eq!(csv.trim(), "n\n4");
+
+    // gc lists the artifacts of the replaced stages (the old collections and everything trained on them), deletes
+    // them only when asked, and the current experiment stays fully cached.
+    let listed = cli(&["gc", file.to_str().unwrap()]);
+    let unused: Vec<&str> = listed.lines().filter(|l| l.contains("/artifacts/")).collect();
+    // Old collections (2); train and eval of seeds 0 and 2 on them and of the dropped seed 1 (3 x 2 x 2).
+    assert_eq!(unused.len(), 2 + 12, "{listed}");
+    assert!(unused.iter().all(|p| std::path::Path::new(p).exists()), "a dry run deletes nothing");
+    cli(&["gc", file.to_str().unwrap(), "--delete"]);
+    assert!(unused.iter().all(|p| !std::path::Path::new(p.trim_start_matches("removed ")).exists()));
+    assert_eq!(executed(&run(&file, &store)), 0);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
