@@ -13,7 +13,8 @@ pub fn save(vs: &nn::VarStore, path: &Path) -> Result<()> {
 
 /// Loads `path` into `vs`; errors name the file and the first parameter that does not fit.
 pub fn load(vs: &mut nn::VarStore, path: &Path) -> Result<()> {
-    let mut stored = Tensor::read_safetensors(path).with_context(|| format!("reading checkpoint {}", path.display()))?;
+    let mut stored =
+        Tensor::read_safetensors(path).with_context(|| format!("reading checkpoint {}", path.display()))?;
     stored.sort_by(|a, b| a.0.cmp(&b.0));
     let mut expected = vs.variables();
     for (name, tensor) in &stored {
