@@ -4,7 +4,6 @@ use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
-use oneshot_lab::train::config::TrainConfig;
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint};
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -45,17 +44,7 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     tch::manual_seed(5);
     let (vs, _) = build_policy(&model, tch::Device::Cpu).unwrap();
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
-    let summary = TrainSummary {
-        model,
-        train: TrainConfig::default(),
-        image: world().image,
-        steps: 0,
-        resumed_from: None,
-        first_val_bc: 0.0,
-        final_val_bc: 0.0,
-        seconds: 0.0,
-        parameters: 0,
-    };
+    let summary = TrainSummary::untrained(model, world().image);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
     let policy = PolicyArg::Trained(dir.clone());
     let none = HashSet::new();

@@ -8,7 +8,7 @@ use crate::pipeline::graph::Plan;
 use crate::pipeline::store::Store;
 use crate::sim::camera::ImageSize;
 use crate::sim::env::WorldConfig;
-use crate::train::config::{LossWeights, TrainConfig, parse_device};
+use crate::train::config::{LossWeights, parse_device};
 use crate::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained, losses};
 use anyhow::{Context, Result, bail};
 use std::collections::HashSet;
@@ -136,17 +136,7 @@ pub fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()>
     tch::manual_seed(0);
     let (vs, _) = build_policy(&c.model, Device::Cpu)?;
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS))?;
-    let summary = TrainSummary {
-        model: c.model.clone(),
-        train: TrainConfig::default(),
-        image: c.image,
-        steps: 0,
-        resumed_from: None,
-        first_val_bc: 0.0,
-        final_val_bc: 0.0,
-        seconds: 0.0,
-        parameters: 0,
-    };
+    let summary = TrainSummary::untrained(c.model.clone(), c.image);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary)?)?;
     let trained = load_trained(&dir, Device::Cpu)?;
     std::fs::remove_dir_all(&dir)?;

@@ -185,26 +185,19 @@ pub struct Sample {
     pub point: [f32; 2],
 }
 
-/// Demonstrator frames to show for a video of `len` frames.
+/// Demonstrator frames to show for a video of `len` frames; in `spread` mode one frame per segment, drawn
+/// uniformly within it, first and last forced.
 pub fn context_indices<R: Rng>(rng: &mut R, len: usize, model: &ModelConfig) -> Vec<usize> {
-    match model.context {
-        ContextMode::Final => vec![len - 1],
-        ContextMode::FirstLast => vec![0, len - 1],
-        ContextMode::Spread => {
-            let n = model.context_frames;
-            (0..n)
-                .map(|i| match i {
-                    0 => 0,
-                    _ if i == n - 1 => len - 1,
-                    _ => rng.random_range(i * len / n..((i + 1) * len / n).max(i * len / n + 1)),
-                })
-                .collect()
-        }
-    }
+    choose_context(len, model, |lo, hi| rng.random_range(lo..hi))
 }
 
 /// The same frames without randomness (evaluation): segment midpoints, first and last forced.
 pub fn context_indices_fixed(len: usize, model: &ModelConfig) -> Vec<usize> {
+    choose_context(len, model, |lo, hi| (lo + hi) / 2)
+}
+
+/// Context frames, with `pick(lo, hi)` choosing a frame in `lo..hi` for each inner segment.
+fn choose_context(len: usize, model: &ModelConfig, mut pick: impl FnMut(usize, usize) -> usize) -> Vec<usize> {
     match model.context {
         ContextMode::Final => vec![len - 1],
         ContextMode::FirstLast => vec![0, len - 1],
@@ -214,7 +207,7 @@ pub fn context_indices_fixed(len: usize, model: &ModelConfig) -> Vec<usize> {
                 .map(|i| match i {
                     0 => 0,
                     _ if i == n - 1 => len - 1,
-                    _ => (2 * i + 1) * len / (2 * n),
+                    _ => pick(i * len / n, ((i + 1) * len / n).max(i * len / n + 1)),
                 })
                 .collect()
         }

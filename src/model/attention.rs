@@ -82,23 +82,28 @@ pub struct ConvBlock {
     dropout: f64,
 }
 
+/// A unit-stride, biased 3-D convolution configuration with `padding` (time, height, width).
+pub fn conv3d_config(padding: [i64; 3]) -> nn::ConvConfigND<[i64; 3]> {
+    let d = nn::ConvConfig::default();
+    nn::ConvConfigND {
+        stride: [1, 1, 1],
+        padding,
+        dilation: [1, 1, 1],
+        groups: 1,
+        bias: true,
+        ws_init: d.ws_init,
+        bs_init: d.bs_init,
+        padding_mode: d.padding_mode,
+    }
+}
+
 /// Temporal (and spatial) extent of the convolution.
 const CONV_KERNEL: i64 = 5;
 
 impl ConvBlock {
     /// A block under `vs` over `channels` channels.
     pub fn new(vs: &nn::Path, channels: i64, causal: bool, dropout: f64) -> ConvBlock {
-        let d = nn::ConvConfig::default();
-        let config = nn::ConvConfigND {
-            stride: [1, 1, 1],
-            padding: [0, CONV_KERNEL / 2, CONV_KERNEL / 2],
-            dilation: [1, 1, 1],
-            groups: 1,
-            bias: true,
-            ws_init: d.ws_init,
-            bs_init: d.bs_init,
-            padding_mode: d.padding_mode,
-        };
+        let config = conv3d_config([0, CONV_KERNEL / 2, CONV_KERNEL / 2]);
         let k = [CONV_KERNEL; 3];
         ConvBlock {
             conv: nn::conv(vs / "conv", channels, channels, k, config),

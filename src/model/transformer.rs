@@ -1,6 +1,8 @@
 //! The paper's policy: a ResNet-18 trunk per frame, positional encoding, causal non-local attention over
 //! [context frames, agent frames], frame and task embeddings, and the action, inverse-dynamics and point heads.
-use super::attention::{AttentionLayer, AttentionSpec, ConvBlock, frame_causal_mask, positional_encoding};
+use super::attention::{
+    AttentionLayer, AttentionSpec, ConvBlock, conv3d_config, frame_causal_mask, positional_encoding,
+};
 use super::config::{Architecture, ModelConfig};
 use super::heads::{EmbeddingMlp, PointHead, PointPrediction, spatial_softmax};
 use super::mixture::{MixtureHead, MixtureParams, MixtureSpec};
@@ -86,17 +88,7 @@ impl TransformerPolicy {
         let arch = config.architecture;
         let causal =
             (0..config.attention_layers).map(|i| Mixer::new(&(vs / "attention" / i), arch, spec, true)).collect();
-        let d = nn::ConvConfig::default();
-        let conv_config = nn::ConvConfigND {
-            stride: [1, 1, 1],
-            padding: [1, 0, 0],
-            dilation: [1, 1, 1],
-            groups: 1,
-            bias: true,
-            ws_init: d.ws_init,
-            bs_init: d.bs_init,
-            padding_mode: d.padding_mode,
-        };
+        let conv_config = conv3d_config([1, 0, 0]);
         let (hidden, latent) = (config.embed_hidden, config.latent);
         TransformerPolicy {
             trunk,

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 /// Implementation versions: bump one when its stage's results would change for the same inputs.
 pub const COLLECT_VERSION: u32 = 1;
 pub const TRAIN_VERSION: u32 = 1;
-pub const EVAL_VERSION: u32 = 1;
+pub const EVAL_VERSION: u32 = 2;
 
 /// The kinds of cached stages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]

@@ -78,6 +78,23 @@ pub struct TrainSummary {
     pub parameters: i64,
 }
 
+impl TrainSummary {
+    /// The summary of a network saved without training (benchmarks and tests of the inference path).
+    pub fn untrained(model: ModelConfig, image: ImageSize) -> TrainSummary {
+        TrainSummary {
+            model,
+            train: TrainConfig::default(),
+            image,
+            steps: 0,
+            resumed_from: None,
+            first_val_bc: 0.0,
+            final_val_bc: 0.0,
+            seconds: 0.0,
+            parameters: 0,
+        }
+    }
+}
+
 /// Builds a policy with fresh weights (and the optional pretrained trunk) on `device`.
 pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::VarStore, Policy)> {
     model.validate()?;
