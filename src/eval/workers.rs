@@ -196,36 +196,41 @@ impl WorkerPool {
 
     /// Starts episodes; episode `j` of `specs` goes to worker `j % len`. Results come back in `specs` order.
     pub fn start(&self, specs: &[EpisodeSpec]) -> Result<Vec<Started>> {
-        let n = self.len();
-        for (w, (tx, _, _)) in self.workers.iter().enumerate() {
-            let mine = specs.iter().skip(w).step_by(n).copied().collect();
-            tx.send(Command::Start(mine)).map_err(|_| anyhow::anyhow!("evaluation worker {w} stopped"))?;
-        }
-        let mut per_worker = Vec::with_capacity(n);
-        for (w, (_, rx, _)) in self.workers.iter().enumerate() {
-            match rx.recv() {
-                Ok(Reply::Started(r)) => per_worker.push(r?.into_iter()),
-                _ => bail!("evaluation worker {w} stopped"),
-            }
-        }
-        Ok(interleave(per_worker, specs.len()))
+        self.round_trip(specs, Command::Start, |reply| match reply {
+            Reply::Started(r) => Some(r),
+            Reply::Stepped(_) => None,
+        })
     }
 
     /// Steps episodes (same order as `start`); `None` leaves an episode alone (its frame comes back empty).
     pub fn step(&self, commands: &[Option<Option<Action>>]) -> Result<Vec<Stepped>> {
+        self.round_trip(commands, Command::Step, |reply| match reply {
+            Reply::Stepped(r) => Some(r),
+            Reply::Started(_) => None,
+        })
+    }
+
+    /// Sends item `j` of `items` to worker `j % len` (wrapped by `command`), then gathers the answers in `items`
+    /// order; `answer` picks the expected reply kind.
+    fn round_trip<I: Copy, O>(
+        &self,
+        items: &[I],
+        command: fn(Vec<I>) -> Command,
+        answer: fn(Reply) -> Option<Result<Vec<O>>>,
+    ) -> Result<Vec<O>> {
         let n = self.len();
         for (w, (tx, _, _)) in self.workers.iter().enumerate() {
-            let mine = commands.iter().skip(w).step_by(n).copied().collect();
-            tx.send(Command::Step(mine)).map_err(|_| anyhow::anyhow!("evaluation worker {w} stopped"))?;
+            let mine = items.iter().skip(w).step_by(n).copied().collect();
+            tx.send(command(mine)).map_err(|_| anyhow::anyhow!("evaluation worker {w} stopped"))?;
         }
         let mut per_worker = Vec::with_capacity(n);
         for (w, (_, rx, _)) in self.workers.iter().enumerate() {
-            match rx.recv() {
-                Ok(Reply::Stepped(r)) => per_worker.push(r?.into_iter()),
-                _ => bail!("evaluation worker {w} stopped"),
+            match rx.recv().ok().and_then(answer) {
+                Some(r) => per_worker.push(r?.into_iter()),
+                None => bail!("evaluation worker {w} stopped"),
             }
         }
-        Ok(interleave(per_worker, commands.len()))
+        Ok(interleave(per_worker, items.len()))
     }
 }
 
