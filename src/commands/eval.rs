@@ -63,12 +63,15 @@ pub fn run_eval(
     if let Some(out) = out {
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         let lines: Vec<String> = results.iter().map(serde_json::to_string).collect::<Result<_, _>>()?;
-        let episodes = out.join(EPISODES_FILE);
-        std::fs::write(&episodes, lines.join("\n") + "\n")
-            .with_context(|| format!("writing {}", episodes.display()))?;
-        let path = out.join(SUMMARY_FILE);
-        std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
-            .with_context(|| format!("writing {}", path.display()))?;
+        write_atomically(&out.join(EPISODES_FILE), &(lines.join("\n") + "\n"))?;
+        write_atomically(&out.join(SUMMARY_FILE), &(serde_json::to_string_pretty(&summary)? + "\n"))?;
     }
     Ok((results, summary))
+}
+
+/// Writes `text` to a temporary name beside `path`, then renames it: a killed run never leaves a half file.
+fn write_atomically(path: &Path, text: &str) -> Result<()> {
+    let tmp = path.with_extension("partial");
+    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
 }
