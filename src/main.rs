@@ -3,7 +3,9 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 use oneshot_lab::commands::{bench, bench_world, contact_sheet, eval, expert_check, inspect, orchestrate};
 use oneshot_lab::data::collect::{CollectConfig, collect};
+use oneshot_lab::data::pairs::{PairDataset, Split};
 use oneshot_lab::eval::EvalConfig;
+use oneshot_lab::eval::probe;
 use oneshot_lab::eval::summary::print_summary;
 use oneshot_lab::pipeline::scheduler::RunOptions;
 use oneshot_lab::pipeline::slurm::SlurmOptions;
@@ -36,6 +38,9 @@ enum Command {
         /// Action budget per episode.
         #[arg(long, default_value_t = 100)]
         max_actions: usize,
+        /// The expert's gripper yaw rule: fixed, heading or object_yaw (default: the robot's in the default world).
+        #[arg(long)]
+        gripper_yaw: Option<String>,
     },
     /// Throughput of expert episodes beside a bare MuJoCo step + render loop.
     BenchWorld {
@@ -92,15 +97,24 @@ enum Command {
     },
     /// Closed-loop rollouts on unseen instances: staged success with 95% intervals.
     Eval {
-        /// `expert`, `random`, or a finished training folder.
+        /// `expert`, `random`, or a finished training folder (evaluated in the world it was trained in).
         #[arg(long)]
         policy: String,
+        /// Evaluate the training folder's checkpoint at this step instead of its final weights.
+        #[arg(long)]
+        checkpoint: Option<u64>,
         #[arg(long, default_value_t = 160)]
         episodes: usize,
         #[arg(long, default_value_t = 60)]
         horizon: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Task ids the episodes cycle through, comma separated (default: all 16).
+        #[arg(long, value_delimiter = ',')]
+        tasks: Option<Vec<usize>>,
+        /// `sample` the network's action distribution (the authors') or take its `mode`.
+        #[arg(long, default_value = "sample")]
+        action: String,
         /// Episodes in lockstep (the network's batch).
         #[arg(long, default_value_t = 32)]
         batch: usize,
@@ -112,14 +126,51 @@ enum Command {
         /// Collection folders whose layouts must not be evaluated on (the training data).
         #[arg(long, value_delimiter = ',')]
         exclude_from: Vec<PathBuf>,
+        /// Evaluate on the training layouts of these collections instead (DEMOS,AGENTS): each agent trajectory's
+        /// layout with the same slot's demonstration; --episodes is then their number.
+        #[arg(long, value_delimiter = ',', conflicts_with = "exclude_from")]
+        training_layouts: Option<Vec<PathBuf>>,
         /// Episode indices to draw as PNG strips (needs --out).
         #[arg(long, value_delimiter = ',')]
         strips: Vec<usize>,
         /// Folder for episodes.jsonl, summary.json and strips.
         #[arg(long)]
         out: Option<PathBuf>,
-        #[command(flatten)]
-        frames: FrameArgs,
+        /// Frame height of the reference policies' world (a trained policy uses its own).
+        #[arg(long)]
+        height: Option<usize>,
+        /// Frame width of the reference policies' world.
+        #[arg(long)]
+        width: Option<usize>,
+        /// Visual meshes, or collision geometry only (reference policies).
+        #[arg(long, value_enum)]
+        visuals: Option<Visuals>,
+    },
+    /// Open-loop probe: a trained policy's most likely and sampled actions on held-out expert windows against the
+    /// expert's, per action dimension (mean absolute error).
+    Probe {
+        /// A finished training folder.
+        #[arg(long)]
+        policy: PathBuf,
+        /// Probe the checkpoint at this step instead of the final weights.
+        #[arg(long)]
+        checkpoint: Option<u64>,
+        /// Demonstrator (Sawyer) collection folder.
+        #[arg(long)]
+        demos: PathBuf,
+        /// Agent (Panda) collection folder.
+        #[arg(long)]
+        agents: PathBuf,
+        /// Windows to probe.
+        #[arg(long, default_value_t = 64)]
+        windows: usize,
+        /// Probe training windows instead of validation ones.
+        #[arg(long)]
+        train_split: bool,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value = "auto")]
+        device: String,
     },
     /// Runs an experiment file: what is not cached executes, then the report is written.
     Run {
@@ -297,8 +348,17 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::ExpertCheck { robot, per_task, seed, max_actions } => {
-            let report = expert_check::expert_check(robot, per_task, seed, max_actions)?;
+        Command::ExpertCheck { robot, per_task, seed, max_actions, gripper_yaw } => {
+            let mut world = WorldConfig::default();
+            if let Some(rule) = gripper_yaw {
+                let rule = serde_json::from_value(serde_json::Value::String(rule.clone()))
+                    .map_err(|_| anyhow::anyhow!("--gripper-yaw {rule}: expected fixed, heading or object_yaw"))?;
+                match robot {
+                    Robot::Sawyer => world.demo_yaw = rule,
+                    Robot::Panda => world.agent_yaw = rule,
+                }
+            }
+            let report = expert_check::expert_check(robot, &world, per_task, seed, max_actions)?;
             expert_check::print_report(&report);
         }
         Command::BenchWorld { robot, episodes, frames } => {
@@ -344,23 +404,63 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval {
             policy,
+            checkpoint,
             episodes,
             horizon,
             seed,
+            tasks,
+            action,
             batch,
             workers,
             device,
             exclude_from,
+            training_layouts,
             strips,
             out,
-            frames,
+            height,
+            width,
+            visuals,
         } => {
-            let config = EvalConfig { episodes, horizon, seed, batch, device, strips, ..EvalConfig::default() };
-            let exclude = eval::training_seeds(&exclude_from)?;
+            let mut config = EvalConfig { episodes, horizon, seed, batch, device, strips, ..EvalConfig::default() };
+            if let Some(tasks) = tasks {
+                config.tasks = tasks;
+            }
+            config.action = serde_json::from_value(serde_json::Value::String(action.clone()))
+                .map_err(|_| anyhow::anyhow!("--action {action}: expected sample or mode"))?;
+            let layouts = match training_layouts.as_deref() {
+                Some([demos, agents]) => eval::Layouts::Training { demos: demos.clone(), agents: agents.clone() },
+                Some(other) => anyhow::bail!("--training-layouts takes DEMOS,AGENTS: two folders, not {}", other.len()),
+                None => eval::Layouts::Fresh(eval::training_seeds(&exclude_from)?),
+            };
             let workers = workers.unwrap_or_else(default_workers);
-            let policy = eval::PolicyArg::parse(&policy);
-            let (_, summary) = eval::run_eval(&policy, &frames.world(), &config, &exclude, workers, out.as_deref())?;
+            let policy = eval::PolicyArg::parse(&policy, checkpoint);
+            let world = match (height, width, visuals, &policy) {
+                (None, None, None, _) => None,
+                (_, _, _, eval::PolicyArg::Trained { .. }) => {
+                    anyhow::bail!(
+                        "a trained policy is evaluated in the world it was trained in: drop --height, --width and --visuals"
+                    )
+                }
+                _ => {
+                    let d = WorldConfig::default();
+                    let image =
+                        ImageSize { height: height.unwrap_or(d.image.height), width: width.unwrap_or(d.image.width) };
+                    Some(WorldConfig { image, visuals: visuals.unwrap_or(d.visuals), ..d })
+                }
+            };
+            let (_, summary) = eval::run_eval(&policy, world.as_ref(), &config, &layouts, workers, out.as_deref())?;
             print_summary(&summary);
+        }
+        Command::Probe { policy, checkpoint, demos, agents, windows, train_split, seed, device } => {
+            let trained = oneshot_lab::train::load_trained(
+                &policy,
+                checkpoint,
+                oneshot_lab::train::config::parse_device(&device)?,
+            )?;
+            let data = PairDataset::open(&demos, &agents, trained.summary.train.val_fraction)?;
+            let split = if train_split { Split::Train } else { Split::Val };
+            let report = probe::open_loop(&trained, &data, split, windows, 16, seed)?;
+            probe::print_probe(&report);
         }
         Command::Run { file, store, jobs, workers, only, force, dry_run, gpus, slurm, slurm_args, slurm_gpu_args } => {
             let slurm = slurm.then(|| SlurmOptions {

@@ -1,5 +1,5 @@
 //! Closed-loop evaluation: reference policies, reproducibility, unseen layouts.
-use oneshot_lab::commands::eval::{PolicyArg, run_eval};
+use oneshot_lab::commands::eval::{Layouts, PolicyArg, run_eval};
 use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
@@ -26,11 +26,13 @@ fn scratch(name: &str) -> PathBuf {
 #[test]
 fn the_expert_places_and_the_random_policy_does_not() {
     let none = HashSet::new();
-    let (_, expert) = run_eval(&PolicyArg::Expert, &world(), &config(16, 80), &none, 2, None).unwrap();
+    let (_, expert) =
+        run_eval(&PolicyArg::Expert, Some(&world()), &config(16, 80), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     let placed = expert.overall.placed;
     assert!(placed.value >= 15.0 / 16.0, "expert placed {placed:?}");
     assert!(placed.low < placed.value && placed.high >= placed.value);
-    let (episodes, random) = run_eval(&PolicyArg::Random, &world(), &config(16, 30), &none, 2, None).unwrap();
+    let (episodes, random) =
+        run_eval(&PolicyArg::Random, Some(&world()), &config(16, 30), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     assert_eq!(random.overall.placed.value, 0.0);
     assert!(episodes.iter().all(|e| e.steps == 30));
     let tasks: HashSet<usize> = episodes.iter().map(|e| e.task).collect();
@@ -44,12 +46,12 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     tch::manual_seed(5);
     let (vs, _) = build_policy(&model, tch::Device::Cpu).unwrap();
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
-    let summary = TrainSummary::untrained(model, world().image);
+    let summary = TrainSummary::untrained(model, world(), 90);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
-    let policy = PolicyArg::Trained(dir.clone());
+    let policy = PolicyArg::Trained { dir: dir.clone(), step: None };
     let none = HashSet::new();
-    let (a, _) = run_eval(&policy, &world(), &config(4, 8), &none, 2, None).unwrap();
-    let (b, _) = run_eval(&policy, &world(), &config(4, 8), &none, 1, None).unwrap();
+    let (a, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 2, None).unwrap();
+    let (b, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 1, None).unwrap();
     assert_eq!(a, b);
     assert!(a.iter().all(|e| e.steps == 8 || e.placed));
     std::fs::remove_dir_all(&dir).unwrap();

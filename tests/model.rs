@@ -109,7 +109,7 @@ fn pretrained_backbone_weights_load_by_torchvision_name() {
     let path = dir.join("resnet18.safetensors");
     tch::manual_seed(4);
     let source = nn::VarStore::new(Device::Cpu);
-    let _trunk = ResNet18::new(&source.root(), 8);
+    let _trunk = ResNet18::new(&source.root(), 8, 4);
     source.save(&path).unwrap();
     let names = source.variables();
     assert!(names.contains_key("layer1.0.conv1.weight") && names.contains_key("layer4.1.bn2.running_var"));

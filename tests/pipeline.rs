@@ -309,6 +309,16 @@ fn malformed_experiment_files_name_file_line_and_key() {
             "[variants.lstm]\nmodel.architecture = \"contextual_lstm\"\n[grid]\nvariants = [\"lstm\"]\n",
             &["bad.toml", "variant `lstm`", "train.loss.inverse"][..],
         ),
+        ("[train]\nlr = 0.1\nseed = 3\n", &["bad.toml", "line 3", "train.seed", "grid.seeds"][..]),
+        ("[variants.s]\ntrain.seed = 3\n[grid]\nvariants = [\"s\"]\n", &["bad.toml", "variant `s`", "train.seed"][..]),
+        ("[eval]\nhistory_frames = 7\n", &["bad.toml", "eval.history_frames = 7", "agent_frames"][..]),
+        ("[collect]\ntasks = [0, 1]\n[eval]\ntasks = [3]\n", &["bad.toml", "eval.tasks", "task 3"][..]),
+        (
+            "[train]\ncheckpoint_interval = 10\n[eval]\ncheckpoints = [15]\n",
+            &["bad.toml", "eval.checkpoints", "15"][..],
+        ),
+        ("[world]\nagent_yaw = \"object_yaw\"\n", &["bad.toml", "eval.fixed_rotation", "agent_yaw"][..]),
+        ("[world]\nagent_yaw = \"sideways\"\n", &["bad.toml", "sideways"][..]),
     ];
     for (text, needles) in cases {
         let path = dir.join("bad.toml");

@@ -48,7 +48,7 @@ fn same_instance_gives_the_same_episode() {
 #[test]
 fn expert_places_the_milk_in_every_quadrant_with_both_robots() {
     for robot in Robot::ALL {
-        let report = expert_check(robot, 2, 0, 100).unwrap();
+        let report = expert_check(robot, &WorldConfig::default(), 2, 0, 100).unwrap();
         for task in 0..4 {
             assert_eq!(report.per_task[task][2], 2, "{robot} task {task}: {:?}", report.per_task[task]);
         }

@@ -93,7 +93,7 @@ pub fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
     let model_s = start.elapsed().as_secs_f64() / steps as f64;
 
     let trunk_vs = nn::VarStore::new(device);
-    let trunk = ResNet18::new(&trunk_vs.root(), c.model.backbone_width);
+    let trunk = ResNet18::new(&trunk_vs.root(), c.model.backbone_width, c.model.backbone_stages);
     let images = Tensor::cat(&[&batch.context, &batch.agent], 1).flatten(0, 1);
     let trunk_step = || {
         let loss = trunk.forward_t(&images, true).mean(Kind::Float);
@@ -136,12 +136,12 @@ pub fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()>
     tch::manual_seed(0);
     let (vs, _) = build_policy(&c.model, Device::Cpu)?;
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS))?;
-    let summary = TrainSummary::untrained(c.model.clone(), c.image);
+    let world = WorldConfig { image: c.image, ..WorldConfig::default() };
+    let summary = TrainSummary::untrained(c.model.clone(), world.clone(), 90);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary)?)?;
-    let trained = load_trained(&dir, Device::Cpu)?;
+    let trained = load_trained(&dir, None, Device::Cpu)?;
     std::fs::remove_dir_all(&dir)?;
 
-    let world = WorldConfig { image: c.image, ..WorldConfig::default() };
     let config = EvalConfig { episodes, horizon, batch: episodes, device: "cpu".into(), ..EvalConfig::default() };
     println!(
         "evaluation benchmark: {episodes} episodes x {horizon} steps, {}x{} frames, {workers} simulation threads, CPU",

@@ -27,12 +27,18 @@ fn check_seed(seed: u64, task: usize, i: usize) -> u64 {
     seed.wrapping_mul(1_000_003) ^ ((task as u64) << 32) ^ (i as u64) ^ 0x00c0_ffee_0000_0000
 }
 
-/// Runs the expert on `per_task` instances of each of the 16 tasks, without rendering.
-pub fn expert_check(robot: Robot, per_task: usize, seed: u64, max_actions: usize) -> Result<ExpertReport> {
+/// Runs the expert on `per_task` instances of each of the 16 tasks in `world`, without rendering.
+pub fn expert_check(
+    robot: Robot,
+    world: &WorldConfig,
+    per_task: usize,
+    seed: u64,
+    max_actions: usize,
+) -> Result<ExpertReport> {
     if per_task == 0 || max_actions == 0 {
         bail!("--per-task ({per_task}) and --max-actions ({max_actions}) must be at least 1");
     }
-    let mut env = Env::new(robot, &WorldConfig::default(), false)?;
+    let mut env = Env::new(robot, world, false)?;
     let mut counts = Vec::with_capacity(NUM_TASKS);
     for t in 0..NUM_TASKS {
         let task = Task::from_id(t)?;

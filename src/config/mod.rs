@@ -209,6 +209,10 @@ impl Experiment {
             Some(v) => v.clone().try_into().with_context(|| format!("{file}: in [variants]"))?,
             None => BTreeMap::new(),
         };
+        reject_train_seed(&base_table, &file, "the base configuration", &text)?;
+        for (name, over) in &variants {
+            reject_train_seed(over, &file, &format!("variant `{name}`"), &text)?;
+        }
         let base = resolve(&base_table, &file, "the base configuration", &text)?;
         validate_grid(&grid, &variants, &file, &text)?;
 
@@ -245,9 +249,19 @@ impl Experiment {
     }
 }
 
+/// A cell's training seed comes from `grid.seeds`: a `train.seed` in the file would be silently overwritten.
+fn reject_train_seed(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<()> {
+    let nested = table.get("train").and_then(|t| t.as_table()).is_some_and(|t| t.contains_key("seed"));
+    if nested || table.contains_key("train.seed") {
+        let line = line_of(text, "seed").map(|l| format!(" (line {l})")).unwrap_or_default();
+        bail!("{file}{line}: in {what}: train.seed is set per cell by grid.seeds; remove it and list the seeds there");
+    }
+    Ok(())
+}
+
 /// Turns merged sections into a validated cell configuration.
 fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<CellConfig> {
-    let config: CellConfig = toml::Value::Table(table.clone()).try_into().map_err(|e: toml::de::Error| {
+    let mut config: CellConfig = toml::Value::Table(table.clone()).try_into().map_err(|e: toml::de::Error| {
         let msg = e.message().to_string();
         let line = msg
             .split('`')
@@ -265,6 +279,25 @@ fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<Ce
     check(crate::train::config::check_heads(&config.model, &config.train))?;
     if config.collect.tasks.is_empty() || config.collect.tasks.iter().any(|&t| t >= NUM_TASKS) {
         bail!("{file}: in {what}: collect.tasks must list task ids 0..{}", NUM_TASKS - 1);
+    }
+    // Evaluation covers the collected tasks unless it names its own (which must have training data).
+    let eval_tasks_given = table.get("eval").and_then(|t| t.as_table()).is_some_and(|t| t.contains_key("tasks"));
+    if !eval_tasks_given {
+        config.eval.tasks = config.collect.tasks.clone();
+    } else if let Some(t) = config.eval.tasks.iter().find(|t| !config.collect.tasks.contains(t)) {
+        bail!("{file}: in {what}: eval.tasks contains task {t}, which collect.tasks does not collect");
+    }
+    check(config.eval.check_policy(&config.model, &config.world))?;
+    let t = &config.train;
+    for &step in &config.eval.checkpoints {
+        if step == 0 || step >= t.steps || (step % t.checkpoint_interval != 0) {
+            bail!(
+                "{file}: in {what}: eval.checkpoints contains {step}: checkpoints to evaluate must be multiples of \
+                 train.checkpoint_interval = {} below train.steps = {} (the final weights are always evaluated)",
+                t.checkpoint_interval,
+                t.steps
+            );
+        }
     }
     Ok(config)
 }
@@ -298,6 +331,29 @@ fn validate_grid(grid: &Grid, variants: &BTreeMap<String, toml::Table>, file: &s
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn load(text: &str) -> Result<Experiment> {
+        let dir = std::env::temp_dir().join(format!(
+            "oneshot-config-{}-{}",
+            std::process::id(),
+            blake3::hash(text.as_bytes())
+        ));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("e.toml");
+        std::fs::write(&path, text).unwrap();
+        let e = Experiment::load(&path, None);
+        std::fs::remove_dir_all(&dir).unwrap();
+        e
+    }
+
+    #[test]
+    fn evaluation_covers_the_collected_tasks_and_the_grid_sets_training_seeds() {
+        let e = load("[collect]\ntasks = [0, 5]\n[grid]\nsizes = [32]\nseeds = [4, 7]\n").unwrap();
+        assert!(e.cells.iter().all(|c| c.config.eval.tasks == [0, 5]));
+        assert_eq!(e.cells.iter().map(|c| c.config.train.seed).collect::<Vec<_>>(), [4, 7]);
+        let own = load("[collect]\ntasks = [0, 5]\n[eval]\ntasks = [5]\n[grid]\nsizes = [32]\n").unwrap();
+        assert_eq!(own.cells[0].config.eval.tasks, [5]);
+    }
 
     #[test]
     fn merge_is_deep_and_later_wins() {

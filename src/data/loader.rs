@@ -81,10 +81,16 @@ pub fn build_batch(
     Ok(Batch::from_samples(samples))
 }
 
-/// Training batches for steps `start..`, produced ahead on a background thread.
+/// Training batches for steps `start..`: produced ahead on a background thread (`depth` > 0), or built when asked
+/// for (`depth` = 0), which on a machine with few cores avoids batch building and the network step competing for
+/// the same cores.
 pub struct Prefetcher {
-    receiver: Receiver<Result<Batch>>,
-    handle: Option<JoinHandle<()>>,
+    source: Source,
+}
+
+enum Source {
+    Inline { data: Arc<PairDataset>, spec: PrefetchSpec, next: u64 },
+    Thread { receiver: Receiver<Result<Batch>>, handle: Option<JoinHandle<()>> },
 }
 
 /// What the producer thread needs.
@@ -94,14 +100,18 @@ pub struct PrefetchSpec {
     pub seed: u64,
     pub start: u64,
     pub augment: bool,
-    /// Ready batches kept queued.
+    /// Ready batches kept queued; 0 builds each batch when it is asked for.
     pub depth: usize,
 }
 
 impl Prefetcher {
     /// Starts producing.
     pub fn start(data: Arc<PairDataset>, spec: PrefetchSpec) -> Prefetcher {
-        let (sender, receiver): (SyncSender<Result<Batch>>, _) = sync_channel(spec.depth.max(1));
+        if spec.depth == 0 {
+            let next = spec.start;
+            return Prefetcher { source: Source::Inline { data, spec, next } };
+        }
+        let (sender, receiver): (SyncSender<Result<Batch>>, _) = sync_channel(spec.depth);
         let handle = std::thread::spawn(move || {
             for step in spec.start.. {
                 let batch =
@@ -111,22 +121,32 @@ impl Prefetcher {
                 }
             }
         });
-        Prefetcher { receiver, handle: Some(handle) }
+        Prefetcher { source: Source::Thread { receiver, handle: Some(handle) } }
     }
 
     /// The next batch.
-    pub fn next_batch(&self) -> Result<Batch> {
-        self.receiver.recv().map_err(|_| anyhow::anyhow!("batch producer stopped"))?
+    pub fn next_batch(&mut self) -> Result<Batch> {
+        match &mut self.source {
+            Source::Inline { data, spec, next } => {
+                *next += 1;
+                build_batch(data, Split::Train, &spec.model, spec.batch_size, spec.seed, *next - 1, spec.augment)
+            }
+            Source::Thread { receiver, .. } => {
+                receiver.recv().map_err(|_| anyhow::anyhow!("batch producer stopped"))?
+            }
+        }
     }
 }
 
 impl Drop for Prefetcher {
     fn drop(&mut self) {
-        // Unblock the producer by draining once, then let it see the closed channel.
-        while self.receiver.try_recv().is_ok() {}
-        if let Some(h) = self.handle.take() {
-            drop(std::mem::replace(&mut self.receiver, sync_channel(1).1));
-            let _ = h.join();
+        if let Source::Thread { receiver, handle } = &mut self.source {
+            // Unblock the producer by draining once, then let it see the closed channel.
+            while receiver.try_recv().is_ok() {}
+            if let Some(h) = handle.take() {
+                drop(std::mem::replace(receiver, sync_channel(1).1));
+                let _ = h.join();
+            }
         }
     }
 }

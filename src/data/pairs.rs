@@ -5,6 +5,7 @@ use super::manifest::Manifest;
 use super::trajectory::Trajectory;
 use crate::model::config::{ContextMode, ModelConfig};
 use crate::sim::action::Action;
+use crate::sim::env::WorldConfig;
 use crate::sim::robot::Robot;
 use crate::sim::task::NUM_TASKS;
 use anyhow::{Context, Result, bail};
@@ -14,6 +15,8 @@ use std::path::Path;
 
 /// Probability that an agent window is forced to the start or the end of its trajectory (half each).
 const FORCE_ENDS: f64 = 0.4;
+/// Frames are decoded once when opening if all of them fit in this many bytes, else on every use.
+const DECODE_AHEAD_BYTES: usize = 4 << 30;
 
 /// Training or validation trajectories.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -26,9 +29,14 @@ pub enum Split {
 pub struct PairDataset {
     demos: Vec<Trajectory>,
     agents: Vec<Trajectory>,
+    /// Decoded RGB frames `[demos, agents][trajectory][step]`, when they fit in memory.
+    decoded: Option<[Vec<Vec<Vec<u8>>>; 2]>,
     /// `[split][task]` -> indices into `demos` / `agents`.
     demo_index: [Vec<Vec<usize>>; 2],
     agent_index: [Vec<Vec<usize>>; 2],
+    /// The world both collections were recorded in, and the JPEG quality of their frames.
+    pub world: WorldConfig,
+    pub jpeg_quality: u8,
     pub height: usize,
     pub width: usize,
 }
@@ -69,6 +77,24 @@ impl PairDataset {
         if di != ai {
             bail!("frame sizes differ: demonstrator {}x{}, agent {}x{}", di.height, di.width, ai.height, ai.width);
         }
+        if dm.config.world != am.config.world {
+            bail!(
+                "{} and {} were collected in different worlds ({:?} vs {:?})",
+                demo_dir.display(),
+                agent_dir.display(),
+                dm.config.world,
+                am.config.world
+            );
+        }
+        if dm.config.jpeg_quality != am.config.jpeg_quality {
+            bail!(
+                "{} and {} store frames at different JPEG qualities ({} vs {})",
+                demo_dir.display(),
+                agent_dir.display(),
+                dm.config.jpeg_quality,
+                am.config.jpeg_quality
+            );
+        }
         for (m, who) in [(&dm, "demonstrator"), (&am, "agent")] {
             if m.config.per_task < 2 {
                 bail!("the {who} collection has {} trajectory per task; a train/val split needs 2", m.config.per_task);
@@ -83,6 +109,15 @@ impl PairDataset {
             idx
         };
         let (demo_index, agent_index) = (index(&dm), index(&am));
+        let frames: usize = demos.iter().chain(&agents).map(Trajectory::len).sum();
+        let decoded = if frames * di.rgb_len() <= DECODE_AHEAD_BYTES {
+            let decode = |trajs: &[Trajectory]| -> Result<Vec<Vec<Vec<u8>>>> {
+                trajs.par_iter().map(|t| (0..t.len()).map(|k| t.frame_rgb(k)).collect()).collect()
+            };
+            Some([decode(&demos)?, decode(&agents)?])
+        } else {
+            None
+        };
         for t in 0..NUM_TASKS {
             for s in 0..2 {
                 if demo_index[s][t].is_empty() != agent_index[s][t].is_empty() {
@@ -90,7 +125,25 @@ impl PairDataset {
                 }
             }
         }
-        Ok(PairDataset { demos, agents, demo_index, agent_index, height: di.height, width: di.width })
+        Ok(PairDataset {
+            demos,
+            agents,
+            decoded,
+            demo_index,
+            agent_index,
+            world: dm.config.world.clone(),
+            jpeg_quality: dm.config.jpeg_quality,
+            height: di.height,
+            width: di.width,
+        })
+    }
+
+    /// RGB frame `t` of trajectory `k` of the demonstrator (`robot` 0) or agent (1) collection.
+    fn rgb(&self, robot: usize, k: usize, t: usize) -> Result<std::borrow::Cow<'_, [u8]>> {
+        Ok(match &self.decoded {
+            Some(d) => std::borrow::Cow::Borrowed(&d[robot][k][t]),
+            None => std::borrow::Cow::Owned([&self.demos, &self.agents][robot][k].frame_rgb(t)?),
+        })
     }
 
     /// Number of (demonstrator video, agent trajectory) pairs in `split`.
@@ -144,9 +197,11 @@ impl PairDataset {
                 }
             })
             .expect("pick is below the total");
-        let agent = &self.agents[self.agent_index[s][task][pick]];
+        let agent_k = self.agent_index[s][task][pick];
+        let agent = &self.agents[agent_k];
         let demo_list = &self.demo_index[s][task];
-        let demo = &self.demos[demo_list[rng.random_range(0..demo_list.len())]];
+        let demo_k = demo_list[rng.random_range(0..demo_list.len())];
+        let demo = &self.demos[demo_k];
 
         let (h, w) = (self.height, self.width);
         let frame_len = 3 * h * w;
@@ -154,14 +209,14 @@ impl PairDataset {
         let demo_draw = if augment { AugmentDraw::sample(rng, h, w) } else { AugmentDraw::identity(h, w) };
         let mut context = vec![0.0f32; context_idx.len() * frame_len];
         for (k, &t) in context_idx.iter().enumerate() {
-            demo_draw.apply(&demo.frame_rgb(t)?, h, w, &mut context[k * frame_len..(k + 1) * frame_len]);
+            demo_draw.apply(&self.rgb(0, demo_k, t)?, h, w, &mut context[k * frame_len..(k + 1) * frame_len]);
         }
 
         let start = window_start(rng, agent.len(), model.agent_frames);
         let mut frames = vec![0.0f32; model.agent_frames * frame_len];
         for k in 0..model.agent_frames {
             let draw = if augment { AugmentDraw::sample(rng, h, w) } else { AugmentDraw::identity(h, w) };
-            draw.apply(&agent.frame_rgb(start + k)?, h, w, &mut frames[k * frame_len..(k + 1) * frame_len]);
+            draw.apply(&self.rgb(1, agent_k, start + k)?, h, w, &mut frames[k * frame_len..(k + 1) * frame_len]);
         }
         let actions = (start..start + model.agent_frames - 1)
             .flat_map(|t| Action(agent.actions[t].map(f64::from)).normalized())
@@ -185,32 +240,21 @@ pub struct Sample {
     pub point: [f32; 2],
 }
 
-/// Demonstrator frames to show for a video of `len` frames; in `spread` mode one frame per segment, drawn
-/// uniformly within it, first and last forced.
+/// Demonstrator frames to show for a video of `len` frames (training and evaluation alike, as the authors'
+/// `select_random_frames`): in `spread` mode one frame drawn uniformly from each equal segment, first and last
+/// forced; `first_last` the two ends; `final` the last frame repeated `context_frames` times.
 pub fn context_indices<R: Rng>(rng: &mut R, len: usize, model: &ModelConfig) -> Vec<usize> {
-    choose_context(len, model, |lo, hi| rng.random_range(lo..hi))
-}
-
-/// The same frames without randomness (evaluation): segment midpoints, first and last forced.
-pub fn context_indices_fixed(len: usize, model: &ModelConfig) -> Vec<usize> {
-    choose_context(len, model, |lo, hi| (lo + hi) / 2)
-}
-
-/// Context frames, with `pick(lo, hi)` choosing a frame in `lo..hi` for each inner segment.
-fn choose_context(len: usize, model: &ModelConfig, mut pick: impl FnMut(usize, usize) -> usize) -> Vec<usize> {
+    let n = model.context_frames;
     match model.context {
-        ContextMode::Final => vec![len - 1],
+        ContextMode::Final => vec![len - 1; n],
         ContextMode::FirstLast => vec![0, len - 1],
-        ContextMode::Spread => {
-            let n = model.context_frames;
-            (0..n)
-                .map(|i| match i {
-                    0 => 0,
-                    _ if i == n - 1 => len - 1,
-                    _ => pick(i * len / n, ((i + 1) * len / n).max(i * len / n + 1)),
-                })
-                .collect()
-        }
+        ContextMode::Spread => (0..n)
+            .map(|i| match i {
+                0 => 0,
+                _ if i == n - 1 => len - 1,
+                _ => rng.random_range(i * len / n..((i + 1) * len / n).max(i * len / n + 1)),
+            })
+            .collect(),
     }
 }
 
@@ -241,7 +285,8 @@ mod tests {
             assert_eq!((idx[0], idx[3]), (0, 49));
             assert!((12..25).contains(&idx[1]) && (25..37).contains(&idx[2]), "{idx:?}");
         }
-        assert_eq!(context_indices_fixed(50, &model), vec![0, 18, 31, 49]);
+        let final_only = ModelConfig { context: ContextMode::Final, ..ModelConfig::default() };
+        assert_eq!(context_indices(&mut rng, 50, &final_only), vec![49; 4], "the last frame, repeated");
     }
 
     #[test]

@@ -205,6 +205,12 @@ pub fn encode_jpeg(rgb: &[u8], height: usize, width: usize, quality: u8) -> Resu
     Ok(out)
 }
 
+/// `rgb` after a JPEG encoding at `quality` and decoding: what a stored frame looks like when read back.
+pub fn jpeg_round_trip(rgb: &[u8], height: usize, width: usize, quality: u8) -> Result<Vec<u8>> {
+    let jpeg = encode_jpeg(rgb, height, width, quality)?;
+    Ok(image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg)?.to_rgb8().into_raw())
+}
+
 fn le_bytes<const N: usize>(rows: &[[f32; N]]) -> Vec<u8> {
     rows.iter().flatten().flat_map(|v| v.to_le_bytes()).collect()
 }

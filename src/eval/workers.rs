@@ -44,6 +44,8 @@ pub struct Started {
     pub demo_seed: u64,
     /// The agent's first frame.
     pub frame: Vec<u8>,
+    /// The agent's gripper pointing down at its rest yaw, as (angle / pi, axis): what a fixed-yaw expert holds.
+    pub rest_orientation: (f64, [f64; 3]),
 }
 
 /// What a worker reports after a step.
@@ -110,7 +112,8 @@ impl Worker {
             slot.env.reset(&Instance::sample(task, spec.agent_seed));
             slot.expert = (self.spec.chooser == Chooser::Expert).then(|| Expert::new(&slot.env));
             slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
-            out.push(Started { demo_frames, demo_seed, frame: slot.env.render_with(camera)? });
+            let frame = slot.env.render_with(camera)?;
+            out.push(Started { demo_frames, demo_seed, frame, rest_orientation: slot.env.rest_orientation() });
         }
         Ok(out)
     }

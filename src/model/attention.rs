@@ -31,7 +31,19 @@ pub struct AttentionSpec {
     pub dropout: f64,
 }
 
-/// Multi-head attention with 1x1x1 projections, ReLU + dropout on the output, a residual and batch norm.
+/// Channel dropout of tokens `[B, N, C]`: each (sample, channel) is zeroed across all tokens with probability `p`
+/// and the rest scaled by 1 / (1 - p), as `Dropout3d` does to `[B, C, T, H, W]` volumes.
+pub fn channel_dropout(x: &Tensor, p: f64, train: bool) -> Tensor {
+    if !train || p == 0.0 {
+        return x.shallow_clone();
+    }
+    let (b, _, c) = x.size3().expect("tokens are [B, N, C]");
+    let keep = Tensor::rand([b, 1, c], (Kind::Float, x.device())).ge(p).to_kind(x.kind());
+    x * keep / (1.0 - p)
+}
+
+/// Multi-head attention with 1x1x1 projections, ReLU + channel dropout on the output, a residual and batch norm
+/// (the authors' non-local block).
 #[derive(Debug)]
 pub struct AttentionLayer {
     spec: AttentionSpec,
@@ -67,16 +79,19 @@ impl AttentionLayer {
             scores = scores.masked_fill(&m.logical_not(), f64::NEG_INFINITY);
         }
         let attended = scores.softmax(-1, Kind::Float).matmul(&v).transpose(1, 2).reshape([b, n, self.spec.inner]);
-        let y = self.out.forward(&attended).relu().dropout(self.spec.dropout, train);
+        let y = channel_dropout(&self.out.forward(&attended).relu(), self.spec.dropout, train);
         (x + y).transpose(1, 2).apply_t(&self.norm, train).transpose(1, 2)
     }
 }
 
-/// A spatio-temporal convolution block: 5x5x5 convolution (padded only towards the past when causal), ReLU,
-/// dropout, a residual and batch norm. Tokens in and out, like [`AttentionLayer`].
+/// The "no attention" block (the authors' `TempConvLayer`): a bottleneck of 1x1x1 convolution to `inner` channels,
+/// ReLU, 5x5x5 convolution (padded only towards the past when causal), ReLU, 1x1x1 convolution back, ReLU,
+/// channel dropout, a residual and batch norm. Tokens in and out, like [`AttentionLayer`].
 #[derive(Debug)]
 pub struct ConvBlock {
+    reduce: nn::Conv<[i64; 3]>,
     conv: nn::Conv<[i64; 3]>,
+    expand: nn::Conv<[i64; 3]>,
     norm: nn::BatchNorm,
     causal: bool,
     dropout: f64,
@@ -101,12 +116,13 @@ pub fn conv3d_config(padding: [i64; 3]) -> nn::ConvConfigND<[i64; 3]> {
 const CONV_KERNEL: i64 = 5;
 
 impl ConvBlock {
-    /// A block under `vs` over `channels` channels.
-    pub fn new(vs: &nn::Path, channels: i64, causal: bool, dropout: f64) -> ConvBlock {
-        let config = conv3d_config([0, CONV_KERNEL / 2, CONV_KERNEL / 2]);
-        let k = [CONV_KERNEL; 3];
+    /// A block under `vs` over `channels` channels with an `inner`-channel bottleneck.
+    pub fn new(vs: &nn::Path, channels: i64, inner: i64, causal: bool, dropout: f64) -> ConvBlock {
+        let pointwise = conv3d_config([0, 0, 0]);
         ConvBlock {
-            conv: nn::conv(vs / "conv", channels, channels, k, config),
+            reduce: nn::conv(vs / "reduce", channels, inner, [1, 1, 1], pointwise),
+            conv: nn::conv(vs / "conv", inner, inner, [CONV_KERNEL; 3], conv3d_config([0, 2, 2])),
+            expand: nn::conv(vs / "expand", inner, channels, [1, 1, 1], pointwise),
             norm: nn::batch_norm3d(vs / "norm", channels, Default::default()),
             causal,
             dropout,
@@ -119,8 +135,9 @@ impl ConvBlock {
         let volume = x.view([b, frames, h, w, c]).permute([0, 4, 1, 2, 3]);
         // Pad time only: all of it before the first frame when causal, split evenly otherwise.
         let (past, future) = if self.causal { (CONV_KERNEL - 1, 0) } else { (CONV_KERNEL / 2, CONV_KERNEL / 2) };
-        let padded = volume.constant_pad_nd([0, 0, 0, 0, past, future]);
-        let y = padded.apply(&self.conv).relu().dropout(self.dropout, train);
+        let reduced = volume.apply(&self.reduce).relu().constant_pad_nd([0, 0, 0, 0, past, future]);
+        let y = reduced.apply(&self.conv).relu().apply(&self.expand).relu();
+        let y = y.feature_dropout(self.dropout, train);
         let out = (volume + y).apply_t(&self.norm, train);
         out.permute([0, 2, 3, 4, 1]).reshape([b, frames * h * w, c])
     }
@@ -138,6 +155,30 @@ mod tests {
         assert!(allowed(1, 3), "visible frames see each other");
         assert!(allowed(4, 0) && allowed(6, 5) && allowed(7, 6));
         assert!(!allowed(4, 6) && !allowed(0, 4) && !allowed(5, 7));
+    }
+
+    #[test]
+    fn channel_dropout_zeroes_whole_channels() {
+        tch::manual_seed(0);
+        let x = Tensor::ones([4, 10, 32], (Kind::Float, Device::Cpu));
+        let y = channel_dropout(&x, 0.5, true);
+        for b in 0..4 {
+            for c in 0..32 {
+                let col = y.get(b).select(1, c);
+                let (lo, hi) = (col.min().double_value(&[]), col.max().double_value(&[]));
+                assert!(lo == hi && (lo == 0.0 || lo == 2.0), "channel {c} of sample {b}: {lo}..{hi}");
+            }
+        }
+        assert!(channel_dropout(&x, 0.5, false).equal(&x));
+    }
+
+    #[test]
+    fn the_no_attention_block_is_the_authors_bottleneck() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let _block = ConvBlock::new(&vs.root(), 512, 128, true, 0.2);
+        let params: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
+        // 512*128 + 128 + 128*128*125 + 128 + 128*512 + 512 + 2*512 (batch norm).
+        assert_eq!(params, 2_180_864);
     }
 
     #[test]

@@ -11,7 +11,7 @@ pub enum ContextMode {
     Spread,
     /// The first and the last frame.
     FirstLast,
-    /// The last frame only.
+    /// The last frame only, repeated `context_frames` times (the authors' final-frame ablation).
     Final,
 }
 
@@ -22,7 +22,7 @@ pub enum Architecture {
     /// Non-local attention over all tokens of all frames (the paper's model).
     #[default]
     Transformer,
-    /// The paper's "no attention" ablation: causal 5x5x5 spatio-temporal convolution blocks instead.
+    /// The paper's "no attention" ablation: causal bottleneck blocks around a 5x5x5 spatio-temporal convolution.
     TemporalConv,
     /// The paper's Contextual-LSTM baseline (behaviour cloning only: no inverse or point head).
     ContextualLstm,
@@ -35,6 +35,9 @@ pub struct ModelConfig {
     pub architecture: Architecture,
     /// ResNet-18 base width (64 is the standard net; smaller widths for CPU runs).
     pub backbone_width: i64,
+    /// Residual stages of the ResNet-18 kept (4: the whole trunk, the paper's; 3 ends at stride 16, with a
+    /// feature map twice as fine, for small frames).
+    pub backbone_stages: usize,
     /// Optional safetensors file of torchvision ResNet-18 weights (names like `layer1.0.conv1.weight`).
     pub pretrained_backbone: Option<String>,
     /// Attention layers over context + agent frames.
@@ -61,7 +64,7 @@ pub struct ModelConfig {
     pub bins: i64,
     pub log_scale_min: f64,
     pub context: ContextMode,
-    /// Demonstrator frames for `context = "spread"`.
+    /// Demonstrator frames for `context = "spread"` and `"final"`.
     pub context_frames: usize,
     /// Agent frames in a training window (actions = frames - 1).
     pub agent_frames: usize,
@@ -72,6 +75,7 @@ impl Default for ModelConfig {
         ModelConfig {
             architecture: Architecture::Transformer,
             backbone_width: 64,
+            backbone_stages: 4,
             pretrained_backbone: None,
             attention_layers: 2,
             attention_inner: 128,
@@ -97,9 +101,8 @@ impl ModelConfig {
     /// Number of demonstrator frames the policy sees.
     pub fn context_len(&self) -> usize {
         match self.context {
-            ContextMode::Spread => self.context_frames,
+            ContextMode::Spread | ContextMode::Final => self.context_frames,
             ContextMode::FirstLast => 2,
-            ContextMode::Final => 1,
         }
     }
 
@@ -121,6 +124,9 @@ impl ModelConfig {
                 bail!("model.{key} = {v} must be positive");
             }
         }
+        if !(1..=4).contains(&self.backbone_stages) {
+            bail!("model.backbone_stages = {} out of range 1..=4", self.backbone_stages);
+        }
         if self.attention_inner % self.attention_heads != 0 {
             bail!("model.attention_inner = {} is not divisible by attention_heads", self.attention_inner);
         }
@@ -133,8 +139,8 @@ impl ModelConfig {
         if self.attention_temperature.is_some_and(|t| t <= 0.0) {
             bail!("model.attention_temperature must be positive");
         }
-        if self.context == ContextMode::Spread && self.context_frames < 2 {
-            bail!("model.context_frames = {} must be at least 2 (first and last)", self.context_frames);
+        if self.context != ContextMode::FirstLast && self.context_frames < 2 {
+            bail!("model.context_frames = {} must be at least 2", self.context_frames);
         }
         if self.agent_frames < 2 {
             bail!("model.agent_frames = {} must be at least 2 (one action)", self.agent_frames);

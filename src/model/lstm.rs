@@ -23,7 +23,7 @@ pub struct ContextualLstm {
 impl ContextualLstm {
     /// Builds the network under `vs`.
     pub fn new(vs: &nn::Path, config: &ModelConfig) -> ContextualLstm {
-        let trunk = ResNet18::new(&(vs / "backbone"), config.backbone_width);
+        let trunk = ResNet18::new(&(vs / "backbone"), config.backbone_width, config.backbone_stages);
         let c = trunk.out_channels();
         let (latent, hidden) = (config.latent, config.lstm_hidden);
         let rnn = nn::RNNConfig { batch_first: true, ..Default::default() };
@@ -35,6 +35,11 @@ impl ContextualLstm {
             policy: nn::linear(vs / "policy", 2 * hidden, config.policy_hidden, Default::default()),
             action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, mixture_spec(config)),
         }
+    }
+
+    /// The ResNet-18 trunk.
+    pub fn trunk_mut(&mut self) -> &mut ResNet18 {
+        &mut self.trunk
     }
 
     fn embed_frames(&self, images: &Tensor, train: bool) -> Tensor {

@@ -77,6 +77,12 @@ pub fn mixture_nll(p: &MixtureParams, x: &Tensor, spec: MixtureSpec) -> Tensor {
     -mixed.mean(Kind::Float)
 }
 
+/// The mean of each entry's most probable component, clamped to [-1, 1]: the most likely action, nearly.
+pub fn mixture_mode(p: &MixtureParams) -> Tensor {
+    let k = p.logits.argmax(-1, true);
+    p.means.gather(-1, &k, false).squeeze_dim(-1).clamp(-1.0, 1.0)
+}
+
 /// Draws one sample per entry: a Gumbel-max component, then a logistic sample from it clamped to [-1, 1].
 pub fn mixture_sample(p: &MixtureParams) -> Tensor {
     let u = Tensor::rand_like(&p.logits) * (1.0 - 2e-5) + 1e-5;

@@ -30,6 +30,14 @@ impl Policy {
         Policy { config: config.clone(), net }
     }
 
+    /// Runs the trunk on channels-last tensors (see [`super::resnet::ResNet18::set_channels_last`]).
+    pub fn set_channels_last(&mut self, on: bool) {
+        match &mut self.net {
+            Net::Transformer(t) => t.trunk_mut().set_channels_last(on),
+            Net::ContextualLstm(l) => l.trunk_mut().set_channels_last(on),
+        }
+    }
+
     /// The settings this network was built with.
     pub fn config(&self) -> &ModelConfig {
         &self.config

@@ -35,16 +35,16 @@ pub fn mixture_spec(config: &ModelConfig) -> MixtureSpec {
 /// A layer that mixes information across frames.
 #[derive(Debug)]
 enum Mixer {
-    Attention(AttentionLayer),
-    Conv(ConvBlock),
+    Attention(Box<AttentionLayer>),
+    Conv(Box<ConvBlock>),
 }
 
 impl Mixer {
     fn new(vs: &nn::Path, arch: Architecture, spec: AttentionSpec, causal: bool) -> Mixer {
         if arch == Architecture::TemporalConv {
-            Mixer::Conv(ConvBlock::new(vs, spec.channels, causal, spec.dropout))
+            Mixer::Conv(Box::new(ConvBlock::new(vs, spec.channels, spec.inner, causal, spec.dropout)))
         } else {
-            Mixer::Attention(AttentionLayer::new(vs, spec))
+            Mixer::Attention(Box::new(AttentionLayer::new(vs, spec)))
         }
     }
 
@@ -65,8 +65,8 @@ pub struct TransformerPolicy {
     causal: Vec<Mixer>,
     task_attention: Mixer,
     task_conv: nn::Conv<[i64; 3]>,
-    frame_embed: EmbeddingMlp,
-    task_embed: EmbeddingMlp,
+    /// One MLP embeds agent frames and the task alike (the authors share it).
+    embed: EmbeddingMlp,
     policy: nn::Linear,
     inverse: nn::Linear,
     action_head: MixtureHead,
@@ -76,7 +76,7 @@ pub struct TransformerPolicy {
 impl TransformerPolicy {
     /// Builds the network under `vs` (call `config.validate()` first).
     pub fn new(vs: &nn::Path, config: &ModelConfig) -> TransformerPolicy {
-        let trunk = ResNet18::new(&(vs / "backbone"), config.backbone_width);
+        let trunk = ResNet18::new(&(vs / "backbone"), config.backbone_width, config.backbone_stages);
         let c = trunk.out_channels();
         let spec = AttentionSpec {
             channels: c,
@@ -88,21 +88,24 @@ impl TransformerPolicy {
         let arch = config.architecture;
         let causal =
             (0..config.attention_layers).map(|i| Mixer::new(&(vs / "attention" / i), arch, spec, true)).collect();
-        let conv_config = conv3d_config([1, 0, 0]);
         let (hidden, latent) = (config.embed_hidden, config.latent);
         TransformerPolicy {
             trunk,
             dropout: config.dropout,
             causal,
             task_attention: Mixer::new(&(vs / "task_attention"), arch, spec, false),
-            task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv_config),
-            frame_embed: EmbeddingMlp::new(&(vs / "frame_embed"), 2 * c, hidden, latent, config.dropout),
-            task_embed: EmbeddingMlp::new(&(vs / "task_embed"), 2 * c, hidden, latent, config.dropout),
+            task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv3d_config([0, 0, 0])),
+            embed: EmbeddingMlp::new(&(vs / "embed"), 2 * c, hidden, latent, config.dropout),
             policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
             inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
             action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, mixture_spec(config)),
             point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
         }
+    }
+
+    /// The ResNet-18 trunk.
+    pub fn trunk_mut(&mut self) -> &mut ResNet18 {
+        &mut self.trunk
     }
 
     /// Trunk features `[B, T, C, h, w]` of normalised images `[B, T, 3, H, W]`.
@@ -133,14 +136,14 @@ impl TransformerPolicy {
 
         // Frame embeddings of the agent frames.
         let agent_feats = frames.narrow(1, tc, ta).reshape([b * ta, c, h, w]);
-        let e = self.frame_embed.forward_t(&spatial_softmax(&agent_feats), train).view([b, ta, -1]);
+        let e = self.embed.forward_t(&spatial_softmax(&agent_feats), train).view([b, ta, -1]);
 
-        // Task embedding from the context and the first agent frame.
+        // Task embedding from the context and the first agent frame; the temporal convolution is unpadded.
         let task_tokens = x.narrow(1, 0, (tc + 1) * hw);
         let task_tokens = self.task_attention.forward(&task_tokens, None, (tc + 1, h, w), train);
         let task_frames = task_tokens.view([b, tc + 1, h, w, c]).permute([0, 4, 1, 2, 3]);
         let pooled = task_frames.apply(&self.task_conv).mean_dim([2i64].as_slice(), false, tch::Kind::Float);
-        let task = self.task_embed.forward_t(&spatial_softmax(&pooled), train);
+        let task = self.embed.forward_t(&spatial_softmax(&pooled), train);
 
         let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
         let hidden = self.policy.forward(&Tensor::cat(&[&task_per_frame, &e], -1)).relu();

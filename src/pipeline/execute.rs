@@ -2,7 +2,7 @@
 //! place before the store records the stage as done.
 use super::graph::{EvalTarget, Job, Kind, Stage, short};
 use super::store::StageResults;
-use crate::commands::eval::{PolicyArg, run_eval, training_seeds};
+use crate::commands::eval::{Layouts, PolicyArg, run_eval, training_seeds};
 use crate::data::collect::collect;
 use crate::train::{CURVE_FILE, TrainRun, curve, train};
 use anyhow::{Context, Result};
@@ -94,13 +94,15 @@ pub fn execute(stage: &Stage, ctx: &ExecContext) -> Result<(PathBuf, StageResult
                 std::fs::remove_dir_all(&staging).with_context(|| format!("removing {}", staging.display()))?;
             }
             let policy = match target {
-                EvalTarget::Trained(k) => PolicyArg::Trained(upstream(ctx, k)?.clone()),
+                EvalTarget::Trained { train, step } => {
+                    PolicyArg::Trained { dir: upstream(ctx, train)?.clone(), step: *step }
+                }
                 EvalTarget::Reference(crate::config::Reference::Expert) => PolicyArg::Expert,
                 EvalTarget::Reference(crate::config::Reference::Random) => PolicyArg::Random,
             };
             let dirs: Vec<PathBuf> = exclude.iter().map(|k| upstream(ctx, k).cloned()).collect::<Result<_>>()?;
-            let seeds = training_seeds(&dirs)?;
-            let (episodes, summary) = run_eval(&policy, world, &eval, &seeds, ctx.workers, Some(&staging))?;
+            let layouts = Layouts::Fresh(training_seeds(&dirs)?);
+            let (episodes, summary) = run_eval(&policy, Some(world), &eval, &layouts, ctx.workers, Some(&staging))?;
             let o = &summary.overall;
             results.metrics = vec![
                 ("reached".into(), o.reached.value),

@@ -12,9 +12,9 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Implementation versions: bump one when its stage's results would change for the same inputs.
-pub const COLLECT_VERSION: u32 = 1;
-pub const TRAIN_VERSION: u32 = 1;
-pub const EVAL_VERSION: u32 = 2;
+pub const COLLECT_VERSION: u32 = 2;
+pub const TRAIN_VERSION: u32 = 2;
+pub const EVAL_VERSION: u32 = 3;
 
 /// The kinds of cached stages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -49,8 +49,11 @@ impl Kind {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum EvalTarget {
-    /// The trained policy of this train stage key.
-    Trained(String),
+    /// The trained policy of this train stage key: its final weights, or its checkpoint at `step`.
+    Trained {
+        train: String,
+        step: Option<u64>,
+    },
     Reference(Reference),
 }
 
@@ -86,6 +89,8 @@ pub struct PlannedCell {
     pub collect_agent: Option<String>,
     pub train: Option<String>,
     pub eval: String,
+    /// Evaluations of intermediate checkpoints: (training step, eval stage key).
+    pub checkpoints: Vec<(u64, String)>,
 }
 
 /// The stage graph of an experiment.
@@ -101,11 +106,13 @@ pub struct Plan {
 /// Training settings that do not change results (where it runs, how far ahead batches are made) are left out of
 /// keys so that moving a run to another machine reuses the cache.
 fn train_identity(t: &TrainConfig) -> TrainConfig {
-    TrainConfig { device: "auto".into(), prefetch: 0, ..t.clone() }
+    TrainConfig { device: "auto".into(), prefetch: 0, memory_format: Default::default(), ..t.clone() }
 }
 
+/// Evaluation settings that do not change one evaluation's results are left out of keys: the device, and which
+/// checkpoints the experiment evaluates (each checkpoint evaluation is a stage keyed by its step).
 fn eval_identity(e: &EvalConfig) -> EvalConfig {
-    EvalConfig { device: "auto".into(), ..e.clone() }
+    EvalConfig { device: "auto".into(), checkpoints: Vec::new(), ..e.clone() }
 }
 
 impl Plan {
@@ -150,15 +157,23 @@ impl Plan {
                 agents: agents.clone(),
             };
             let train_key = plan.add(Kind::Train, inputs, vec![demos.clone(), agents.clone()], job);
-            let eval = eval_identity(&c.eval);
-            let inputs = serde_json::json!({ "world": c.world, "eval": eval, "policy": "trained" });
-            let job = Job::Eval {
-                target: EvalTarget::Trained(train_key.clone()),
-                world: c.world.clone(),
-                eval: c.eval.clone(),
-                exclude: vec![demos.clone(), agents.clone()],
+            let upstream = vec![train_key.clone(), demos.clone(), agents.clone()];
+            let mut eval_stage = |step: Option<u64>| {
+                let eval = eval_identity(&c.eval);
+                let mut inputs = serde_json::json!({ "world": c.world, "eval": eval, "policy": "trained" });
+                if let Some(s) = step {
+                    inputs["checkpoint"] = s.into();
+                }
+                let job = Job::Eval {
+                    target: EvalTarget::Trained { train: train_key.clone(), step },
+                    world: c.world.clone(),
+                    eval: c.eval.clone(),
+                    exclude: vec![demos.clone(), agents.clone()],
+                };
+                plan.add(Kind::Eval, inputs, upstream.clone(), job)
             };
-            let eval_key = plan.add(Kind::Eval, inputs, vec![train_key.clone(), demos.clone(), agents.clone()], job);
+            let checkpoints = c.eval.checkpoints.iter().map(|&s| (s, eval_stage(Some(s)))).collect();
+            let eval_key = eval_stage(None);
             plan.cells.push(PlannedCell {
                 name: cell.name.clone(),
                 policy: "model".into(),
@@ -169,6 +184,7 @@ impl Plan {
                 collect_agent: Some(agents),
                 train: Some(train_key),
                 eval: eval_key,
+                checkpoints,
             });
         }
         for &r in &experiment.grid.references {
@@ -191,6 +207,7 @@ impl Plan {
                 collect_agent: None,
                 train: None,
                 eval: eval_key,
+                checkpoints: Vec::new(),
             });
         }
         plan

@@ -74,6 +74,9 @@ pub fn labels(plan: &Plan) -> HashMap<String, Vec<String>> {
             }
         }
         out.entry(c.eval.clone()).or_default().push(format!("{}/eval", c.name));
+        for (step, k) in &c.checkpoints {
+            out.entry(k.clone()).or_default().push(format!("{}/eval@{step}", c.name));
+        }
     }
     out
 }
@@ -106,7 +109,7 @@ fn selected(plan: &Plan, only: Option<&str>, labels: &HashMap<String, Vec<String
 }
 
 fn needs_gpu(stage: &Stage) -> bool {
-    matches!(stage.job, Job::Train { .. } | Job::Eval { target: EvalTarget::Trained(_), .. })
+    matches!(stage.job, Job::Train { .. } | Job::Eval { target: EvalTarget::Trained { .. }, .. })
 }
 
 #[derive(Debug, Clone, PartialEq)]

@@ -56,7 +56,7 @@ pub fn run_job(stage: &Stage, ctx: &ExecContext, opts: &SlurmOptions) -> Result<
         .arg("--output")
         .arg(&log)
         .args(&opts.args);
-    if matches!(stage.job, Job::Train { .. } | Job::Eval { target: EvalTarget::Trained(_), .. }) {
+    if matches!(stage.job, Job::Train { .. } | Job::Eval { target: EvalTarget::Trained { .. }, .. }) {
         cmd.args(&opts.gpu_args);
     }
     let out = cmd.arg("--wrap").arg(&wrap).output().context("running sbatch (is Slurm installed and up?)")?;

@@ -6,7 +6,8 @@
 //!   configuration (JSON) that went into the key, `upstream` a JSON array of upstream keys.
 //! - `attempts(id, stage_key, status, host, pid, started_at, finished_at, error)`: every execution of a stage.
 //! - `experiments(name, file, description, profile, updated_at)` and
-//!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`.
+//!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`;
+//!   `checkpoint_evals(experiment, cell, step, eval_key)`: a cell's evaluations of intermediate checkpoints.
 //! - `episodes(eval_key, idx, task, agent_seed, demo_seed, reached, picked, placed, steps, first_reached,
 //!   first_picked, first_placed)`: every evaluation episode.
 //! - `metrics(stage_key, name, value)`: scalar results (e.g. `placed`, `final_val_bc`, `trajectories`).
@@ -38,6 +39,9 @@ CREATE TABLE IF NOT EXISTS cells (
     experiment TEXT NOT NULL, cell TEXT NOT NULL, policy TEXT NOT NULL, size INTEGER, variant TEXT, seed INTEGER,
     collect_demo TEXT, collect_agent TEXT, train_key TEXT, eval_key TEXT NOT NULL,
     PRIMARY KEY (experiment, cell));
+CREATE TABLE IF NOT EXISTS checkpoint_evals (
+    experiment TEXT NOT NULL, cell TEXT NOT NULL, step INTEGER NOT NULL, eval_key TEXT NOT NULL,
+    PRIMARY KEY (experiment, cell, step));
 CREATE TABLE IF NOT EXISTS episodes (
     eval_key TEXT NOT NULL, idx INTEGER NOT NULL, task INTEGER NOT NULL, agent_seed TEXT NOT NULL,
     demo_seed TEXT NOT NULL, reached INTEGER NOT NULL, picked INTEGER NOT NULL, placed INTEGER NOT NULL,
@@ -154,12 +158,19 @@ impl Store {
             params![name, file, description, profile, now()],
         )?;
         tx.execute("DELETE FROM cells WHERE experiment = ?1", [name])?;
+        tx.execute("DELETE FROM checkpoint_evals WHERE experiment = ?1", [name])?;
         for c in cells {
             tx.execute(
                 "INSERT INTO cells (experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
                 params![name, c.name, c.policy, c.size.map(|n| n as i64), c.variant, c.seed.map(|s| s as i64), c.collect_demo, c.collect_agent, c.train, c.eval],
             )?;
+            for (step, key) in &c.checkpoints {
+                tx.execute(
+                    "INSERT INTO checkpoint_evals (experiment, cell, step, eval_key) VALUES (?1, ?2, ?3, ?4)",
+                    params![name, c.name, *step as i64, key],
+                )?;
+            }
         }
         tx.commit()?;
         Ok(())

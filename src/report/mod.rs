@@ -77,6 +77,10 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         }
     }
     plots::loss_curves(&staging, &curves)?;
+    let step_curves = data::step_curves(store, experiment, &cells)?;
+    if !step_curves.is_empty() {
+        plots::success_vs_steps(&staging, &step_curves)?;
+    }
 
     let mut index = format!("# {experiment}\n\n");
     if !description.is_empty() {
@@ -97,6 +101,11 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     index += &tables::markdown(&rows);
     index += "\nAlso as [CSV](table1.csv) and [LaTeX](table1.tex).\n\n## Context ablation (largest training set)\n\n";
     index += &context_table(&at_largest);
+    if !step_curves.is_empty() {
+        index += "\n## Success against training steps\n\n";
+        index += &tables::steps_markdown(&step_curves);
+        index += "\n![success against training steps](success_vs_steps.png)\n";
+    }
     index += "\n## Figures\n\n![success per configuration](success_by_configuration.png)\n\n";
     index += "![success vs training data](success_vs_size.png)\n\n![BC loss curves](loss_curves.png)\n\n";
     index += "SVG versions sit beside the PNGs.\n\n## Sources\n\n| model | train stages | eval stages |\n| --- | --- | --- |\n";

@@ -1,6 +1,6 @@
 //! The report's figures, drawn as SVG with `plotters` and rasterised to PNG with `resvg` (using the DejaVu Sans
 //! font shipped in `assets/fonts`, so PNGs look the same on every machine).
-use super::data::{CurveRow, ResultRow};
+use super::data::{CurveRow, ResultRow, StepCurve};
 use super::paper::paper_placed;
 use anyhow::{Context, Result};
 use plotters::prelude::*;
@@ -185,6 +185,64 @@ pub fn success_vs_size(dir: &Path, rows: &[ResultRow]) -> Result<()> {
             .border_style(BLACK)
             .label_font(("sans-serif", 15))
             .draw()?;
+        Ok(())
+    })
+}
+
+/// Success against training steps: one panel per stage (reach, pick, place), a line with its 95% band per
+/// configuration.
+pub fn success_vs_steps(dir: &Path, curves: &[StepCurve]) -> Result<()> {
+    let max_step = curves.iter().flat_map(|c| c.points.iter().map(|p| p.0)).max().unwrap_or(1).max(1) as f64;
+    draw(dir, "success_vs_steps", |root| {
+        let root = root.titled("Success against training steps, 95% CI bands", ("sans-serif", 24))?;
+        let panels = root.split_evenly((1, 3));
+        for (stage, (panel, name)) in panels.iter().zip(["reached", "picked", "placed"]).enumerate() {
+            let mut chart = ChartBuilder::on(panel)
+                .caption(name, ("sans-serif", 19))
+                .margin(10)
+                .x_label_area_size(45)
+                .y_label_area_size(if stage == 0 { 50 } else { 30 })
+                .build_cartesian_2d(0.0..max_step * 1.04, 0.0..100.0)?;
+            chart
+                .configure_mesh()
+                .x_labels(4)
+                .x_desc("training step")
+                .y_desc(if stage == 0 { "% of episodes" } else { "" })
+                .x_label_formatter(&|x| format!("{x:.0}"))
+                .y_label_formatter(&|y| format!("{y:.0}"))
+                .label_style(("sans-serif", 13))
+                .axis_desc_style(("sans-serif", 15))
+                .draw()?;
+            for (i, curve) in curves.iter().enumerate() {
+                let colour = PALETTE[i % PALETTE.len()];
+                let pts: Vec<(f64, [f64; 3])> = curve
+                    .points
+                    .iter()
+                    .map(|(step, r)| {
+                        (*step as f64, [100.0 * r[stage].value, 100.0 * r[stage].low, 100.0 * r[stage].high])
+                    })
+                    .collect();
+                let band: Vec<(f64, f64)> =
+                    pts.iter().map(|(x, p)| (*x, p[2])).chain(pts.iter().rev().map(|(x, p)| (*x, p[1]))).collect();
+                chart.draw_series(std::iter::once(Polygon::new(band, colour.mix(0.15).filled())))?;
+                let line =
+                    chart.draw_series(LineSeries::new(pts.iter().map(|(x, p)| (*x, p[0])), colour.stroke_width(3)))?;
+                if stage == 2 {
+                    line.label(curve.label.as_str())
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
+                }
+                chart.draw_series(pts.iter().map(|(x, p)| Circle::new((*x, p[0]), 4, colour.filled())))?;
+            }
+            if stage == 2 && !curves.is_empty() {
+                chart
+                    .configure_series_labels()
+                    .position(SeriesLabelPosition::UpperLeft)
+                    .background_style(WHITE.mix(0.9))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 13))
+                    .draw()?;
+            }
+        }
         Ok(())
     })
 }

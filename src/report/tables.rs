@@ -1,5 +1,5 @@
 //! Results tables as Markdown, LaTeX (booktabs) and CSV. Missing results appear as `missing`.
-use super::data::ResultRow;
+use super::data::{ResultRow, StepCurve};
 use super::paper::paper_stages;
 use crate::eval::stats::Rate;
 
@@ -32,6 +32,18 @@ pub fn markdown(rows: &[ResultRow]) -> String {
         };
         s +=
             &format!("| {} | {} | {} | {} | {} | {} |\n", r.label, seeds(r), cells[0], cells[1], cells[2], paper(r, 2));
+    }
+    s
+}
+
+/// Markdown table of success against training steps: one line per configuration and evaluated step.
+pub fn steps_markdown(curves: &[StepCurve]) -> String {
+    let mut s = String::from("| model | step | reach % [95% CI] | pick % [95% CI] | place % [95% CI] |\n");
+    s += "| --- | --- | --- | --- | --- |\n";
+    for c in curves {
+        for (step, r) in &c.points {
+            s += &format!("| {} | {step} | {} | {} | {} |\n", c.label, pct(&r[0]), pct(&r[1]), pct(&r[2]));
+        }
     }
     s
 }

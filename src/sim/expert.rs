@@ -1,44 +1,65 @@
-//! Scripted expert with privileged state (design.md): hover above the object with the gripper open,
-//! descend, close and lift, carry above the target quadrant, open. Re-tries a grasp that failed.
+//! Scripted expert with privileged state, timed like the authors' `PickPlaceController` (`expert_pick_place.py`):
+//! approach a point 0.2 above the object until within 5 cm of it (or until step 14); 7 steps towards the grasp
+//! point; close the gripper; rise back towards the hover point (2 steps); carry to 0.3 above the target quadrant's
+//! centre until within reach of it; open. Every position target lies at most 0.15 from the gripper. Departures,
+//! both for this world's physics: the authors close the gripper while already rising, which here loses most
+//! objects, so the gripper closes in place for 3 steps first; and they rise towards the point above the object,
+//! which here feeds a swing of the arm back into the target, so the gripper rises straight up from where it
+//! closed. Unlike the authors', whose failed episodes were discarded and re-run, the expert starts over from the
+//! approach when the object is not in the gripper as it carries, so that demonstrations also show recoveries.
+//! How the gripper turns about the vertical is a world setting per robot ([`GripperYaw`]).
 use super::action::Action;
-use super::env::Env;
+use super::env::{Env, GripperYaw};
+use super::robot::Robot;
 use super::rotation::{downward, to_angle_axis};
 use super::task::{BIN_FLOOR_TOP, Object, Shape};
 use nalgebra::Vector3;
 use std::f64::consts::{FRAC_PI_2, PI};
 
-/// Height above the object at which the gripper hovers before descending.
+/// Height above the object of the point the gripper approaches first.
 const HOVER: f64 = 0.2;
-/// Number of policy steps of the descent.
-const DESCEND_STEPS: usize = 8;
-/// Steps spent closing and opening the gripper.
-const GRIP_STEPS: usize = 4;
-/// Height the object is lifted to before carrying.
-const LIFT_Z: f64 = 1.05;
-/// Carry height above the target bin (bin floor + 0.3, design.md).
+/// Distance to the hover point at which the descent starts (the authors' `g_tol` of a first try).
+const APPROACH_TOLERANCE: f64 = 0.05;
+/// The descent starts at this step at the latest.
+const LAST_APPROACH_STEP: usize = 14;
+/// Steps from the start of the descent to closing the gripper, to rising, and to the start of the carry.
+const CLOSE_AFTER: usize = 8;
+const RISE_AFTER: usize = CLOSE_AFTER + 3;
+const CARRY_AFTER: usize = RISE_AFTER + 2;
+/// Height of the carry point: 0.3 above the bin floor, kept inside the action's z range.
 const CARRY_Z: f64 = 1.1;
-/// Largest change of the position target per step (design.md).
+/// Largest distance of a position target from the gripper (the authors' `max_step`).
 const MAX_DELTA: f64 = 0.15;
 /// Lowest height of the grip site, keeping the fingertips off the bin floor.
 const MIN_GRASP_Z: f64 = BIN_FLOOR_TOP + 0.022;
+/// The object counts as lost from the gripper once it is this far below the grip site.
+const LOST_BELOW: f64 = 0.12;
+/// Steps over which a turning demonstrator reaches its grasp yaw (the authors slerp over 5 steps).
+const TURN_STEPS: usize = 5;
+/// Extra turn for the cereal box under the heading rule (the authors': pi/3).
+const CEREAL_TURN: f64 = std::f64::consts::FRAC_PI_3;
 
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Phase {
-    Approach,
-    Descend(usize),
-    Grasp(usize),
-    Lift,
-    Carry,
-    Release(usize),
-    Done,
+/// Distance from the carry point within which the gripper opens (the authors': 6 cm for the Panda, 1 cm for the
+/// Sawyer).
+fn release_distance(robot: Robot) -> f64 {
+    match robot {
+        Robot::Panda => 0.06,
+        Robot::Sawyer => 0.01,
+    }
 }
 
 /// The expert's state for one episode.
 pub struct Expert {
-    phase: Phase,
+    /// Yaw the gripper starts at (the robot's rest yaw) and the yaw it turns to.
+    start_yaw: f64,
     yaw: f64,
-    hover_z: f64,
-    grasp_z: f64,
+    /// Actions taken so far.
+    t: usize,
+    /// Step at which the descent began.
+    descent: Option<usize>,
+    /// Where the gripper closed.
+    grasp: Option<Vector3<f64>>,
+    released: bool,
 }
 
 impl Expert {
@@ -47,18 +68,22 @@ impl Expert {
         let task = env.instance().expect("expert needs a reset environment").task;
         let obj = task.object_kind();
         let p = env.object_pos(task.object);
-        let grasp_z = (p[2] + grasp_offset(obj)).max(MIN_GRASP_Z);
-        Expert {
-            phase: Phase::Approach,
-            yaw: grasp_yaw(obj, env.object_yaw(task.object)),
-            hover_z: p[2] + HOVER,
-            grasp_z,
-        }
+        let start_yaw = env.rest_yaw();
+        let yaw = match env.gripper_yaw_rule() {
+            GripperYaw::Fixed => start_yaw,
+            GripperYaw::ObjectYaw => grasp_yaw(obj, env.object_yaw(task.object)),
+            GripperYaw::Heading => {
+                let (ee, _) = env.eef_pose();
+                let turn = if obj == Object::Cereal { CEREAL_TURN } else { 0.0 };
+                wrap_angle(start_yaw + (p[1] - ee[1]).atan2(p[0] - ee[0]) + turn)
+            }
+        };
+        Expert { start_yaw, yaw, t: 0, descent: None, grasp: None, released: false }
     }
 
-    /// Whether the expert has released the object and is only holding still.
+    /// Whether the expert has opened the gripper above the target and is only holding still.
     pub fn done(&self) -> bool {
-        self.phase == Phase::Done
+        self.released
     }
 
     /// The next action.
@@ -66,68 +91,53 @@ impl Expert {
         let task = env.instance().expect("expert needs a reset environment").task;
         let obj = Vector3::from(env.object_pos(task.object));
         let (ee, _) = env.eef_pose();
-        let (target, gripper) = match self.phase {
-            Phase::Approach => {
-                let goal = Vector3::new(obj[0], obj[1], self.hover_z);
-                if (ee.xy() - goal.xy()).norm() < 0.01 && (ee[2] - goal[2]).abs() < 0.03 {
-                    self.phase = Phase::Descend(0);
+        let t = self.t;
+        self.t += 1;
+        let hover = obj + Vector3::new(0.0, 0.0, HOVER);
+        let carry = {
+            let c = task.target_centre();
+            Vector3::new(c[0], c[1], CARRY_Z)
+        };
+        let (target, gripper) = match self.descent {
+            None => {
+                if (hover - ee).norm() < APPROACH_TOLERANCE || t >= LAST_APPROACH_STEP {
+                    self.descent = Some(t);
                 }
-                (goal, -1.0)
+                (hover, -1.0)
             }
-            Phase::Descend(k) => {
-                let f = ((k + 1) as f64 / DESCEND_STEPS as f64).min(1.0);
-                let z = self.hover_z + f * (self.grasp_z - self.hover_z);
-                let settled = k + 1 >= DESCEND_STEPS && (ee[2] - self.grasp_z).abs() < 0.01;
-                self.phase = if settled || k > DESCEND_STEPS + 6 { Phase::Grasp(0) } else { Phase::Descend(k + 1) };
+            Some(s) if t < s + CLOSE_AFTER => {
+                let z = (obj[2] + grasp_offset(task.object_kind())).max(MIN_GRASP_Z);
                 (Vector3::new(obj[0], obj[1], z), -1.0)
             }
-            Phase::Grasp(k) => {
-                self.phase = if k + 1 >= GRIP_STEPS { Phase::Lift } else { Phase::Grasp(k + 1) };
-                (Vector3::new(ee[0], ee[1], self.grasp_z), 1.0)
+            Some(s) if t < s + RISE_AFTER => (*self.grasp.get_or_insert(ee), 1.0),
+            Some(s) if t < s + CARRY_AFTER => {
+                let g = self.grasp.unwrap_or(ee);
+                (Vector3::new(g[0], g[1], g[2] + HOVER), 1.0)
             }
-            Phase::Lift => {
-                if obj[2] < self.grasp_z - 0.05 + (ee[2] - self.grasp_z).max(0.0) && ee[2] > self.grasp_z + 0.08 {
-                    // The object stayed behind: start over from above it.
-                    self.restart(env);
-                    (Vector3::new(ee[0], ee[1], LIFT_Z), -1.0)
-                } else {
-                    if ee[2] > LIFT_Z - 0.03 {
-                        self.phase = Phase::Carry;
-                    }
-                    (Vector3::new(ee[0], ee[1], LIFT_Z), 1.0)
-                }
+            Some(_) if !self.released && ee[2] - obj[2] > LOST_BELOW => {
+                // The grasp failed or the object slipped out: start over from above it.
+                (self.t, self.descent, self.grasp) = (1, None, None);
+                (hover, -1.0)
             }
-            Phase::Carry => {
-                let c = task.target_centre();
-                let goal = Vector3::new(c[0], c[1], CARRY_Z);
-                if (ee.xy() - goal.xy()).norm() < 0.02 {
-                    self.phase = Phase::Release(0);
-                }
-                if ee[2] - obj[2] > 0.12 {
-                    self.restart(env);
-                }
-                (goal, 1.0)
-            }
-            Phase::Release(k) => {
-                self.phase = if k + 1 >= GRIP_STEPS { Phase::Done } else { Phase::Release(k + 1) };
+            Some(_) if !self.released && (carry - ee).norm() > release_distance(env.robot()) => (carry, 1.0),
+            Some(_) => {
+                self.released = true;
                 (ee, -1.0)
             }
-            Phase::Done => (ee, -1.0),
         };
         let step = target - ee;
         let clipped = if step.norm() > MAX_DELTA { ee + step * (MAX_DELTA / step.norm()) } else { target };
-        let (angle, axis) = to_angle_axis(&downward(self.yaw));
+        let turned = (self.t as f64 / TURN_STEPS as f64).min(1.0);
+        let yaw = self.start_yaw + turned * wrap_angle(self.yaw - self.start_yaw);
+        let (angle, axis) = to_angle_axis(&downward(yaw));
         Action::new([clipped[0], clipped[1], clipped[2]], angle, axis, gripper).clipped()
     }
+}
 
-    fn restart(&mut self, env: &Env) {
-        let task = env.instance().expect("reset environment").task;
-        let p = env.object_pos(task.object);
-        self.yaw = grasp_yaw(task.object_kind(), env.object_yaw(task.object));
-        self.hover_z = p[2] + HOVER;
-        self.grasp_z = (p[2] + grasp_offset(task.object_kind())).max(MIN_GRASP_Z);
-        self.phase = Phase::Approach;
-    }
+/// `a` wrapped into (-pi, pi].
+fn wrap_angle(a: f64) -> f64 {
+    let w = a.rem_euclid(2.0 * PI);
+    if w > PI { w - 2.0 * PI } else { w }
 }
 
 /// Height of the grasp point relative to the object's centre.

@@ -60,6 +60,12 @@ pub fn downward(yaw: f64) -> Matrix3<f64> {
     .into_inner()
 }
 
+/// The yaw `y` for which [`downward`]`(y)` is closest to `r`: read from where `r` sends the gripper's x axis.
+pub fn yaw_of(r: &Matrix3<f64>) -> f64 {
+    let x = r * Vector3::x();
+    (-x[1]).atan2(-x[0])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -76,6 +82,13 @@ mod tests {
         let r = Rotation3::from_euler_angles(0.3, -0.2, 0.9).into_inner();
         let (a, axis) = to_angle_axis(&r);
         assert!((from_angle_axis(a, axis) - r).norm() < 1e-9);
+    }
+
+    #[test]
+    fn yaw_of_inverts_downward() {
+        for yaw in [-2.5, -0.3, 0.0, 1.2, 3.0] {
+            assert!((yaw_of(&downward(yaw)) - yaw).abs() < 1e-9);
+        }
     }
 
     #[test]

@@ -1,20 +1,16 @@
 //! Composes the bins scene with one robot: robosuite's bins arena, the four objects, the robot arm with its
 //! gripper (attached through MuJoCo's model-editing API), lights and the `frontview` camera.
 use super::assets::assets_root;
+use super::camera::{CAMERA_EULER, CAMERA_POS, ImageSize, Intrinsics};
 use super::robot::Robot;
 use super::task::{Object, Shape};
 use anyhow::{Context, Result, anyhow};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_editing::Attach;
 
-/// Offset applied to robosuite's bins arena so its bins land at design.md's centres.
+/// Offset applied to robosuite's bins arena so its bins land where the authors' arena has them: source bin
+/// centred at (0.6, -0.15, 0.8), target bin at (0.6, 0.38, 0.8).
 const ARENA_OFFSET: [f64; 3] = [0.5, 0.1, 0.0];
-/// Camera position of `frontview` (design.md).
-pub const CAMERA_POS: [f64; 3] = [1.6, 0.1, 1.75];
-/// Point the `frontview` camera looks at.
-const CAMERA_LOOKAT: [f64; 3] = [0.45, 0.1, 1.0];
-/// Vertical field of view of `frontview`, degrees.
-pub const CAMERA_FOVY: f64 = 45.0;
 /// Prefix of every element of the attached robot.
 pub const ROBOT_PREFIX: &str = "robot0_";
 /// Prefix of every element of the gripper inside the robot.
@@ -36,8 +32,8 @@ pub fn object_body_name(obj: Object) -> String {
     format!("obj_{}", obj.name())
 }
 
-/// Compiles the scene for `robot`; `offscreen` is the largest square image that will be rendered.
-pub fn build_model(robot: Robot, offscreen: usize) -> Result<MjModel> {
+/// Compiles the scene for `robot`, with the camera set up for frames of `image`.
+pub fn build_model(robot: Robot, image: ImageSize) -> Result<MjModel> {
     let root = assets_root()?;
     let spec = robot.spec();
     let robot_xml = root.join("robots").join(spec.robot_dir).join("robot.xml");
@@ -56,7 +52,7 @@ pub fn build_model(robot: Robot, offscreen: usize) -> Result<MjModel> {
         .map_err(|e| anyhow!("attaching the gripper: {e}"))?;
 
     let mut scene =
-        MjSpec::from_xml_string(&world_xml(offscreen, spec.base_pos)).map_err(|e| anyhow!("scene template: {e}"))?;
+        MjSpec::from_xml_string(&world_xml(image, spec.base_pos)).map_err(|e| anyhow!("scene template: {e}"))?;
     let world = scene.world_body_mut();
     world
         .add_frame()
@@ -92,7 +88,7 @@ fn disable_self_collision(model: &mut MjModel) {
 }
 
 /// The scene's own MJCF: physics options, render quality, objects, pedestal, light and camera.
-fn world_xml(offscreen: usize, base: [f64; 3]) -> String {
+fn world_xml(image: ImageSize, base: [f64; 3]) -> String {
     let mut objects = String::new();
     for (i, obj) in Object::ALL.iter().enumerate() {
         let [r, g, b, a] = obj.rgba();
@@ -112,37 +108,29 @@ fn world_xml(offscreen: usize, base: [f64; 3]) -> String {
             name = object_body_name(*obj)
         ));
     }
-    let [xx, xy, xz, yx, yy, yz] = camera_xyaxes();
     let [cx, cy, cz] = CAMERA_POS;
+    let [ex, ey, ez] = CAMERA_EULER;
+    let intrinsics = Intrinsics::for_size(image).mjcf_attributes(image);
+    let (offwidth, offheight) = (image.width.max(64), image.height.max(64));
     let base_top = base[2];
     format!(
         r#"<mujoco model="oneshot_bins">
   <compiler angle="radian"/>
   <option timestep="0.002" cone="elliptic" impratio="10"/>
   <visual>
-    <global offwidth="{offscreen}" offheight="{offscreen}"/>
+    <global offwidth="{offwidth}" offheight="{offheight}"/>
     <quality shadowsize="0" offsamples="0"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5" specular="0.1 0.1 0.1"/>
   </visual>
   <worldbody>
     <geom name="pedestal" type="cylinder" size="0.12 {ph}" pos="{px} {py} {ph}" rgba="0.2 0.2 0.22 1"
           contype="0" conaffinity="0" group="1"/>
-    <camera name="frontview" mode="fixed" pos="{cx} {cy} {cz}" xyaxes="{xx} {xy} {xz} {yx} {yy} {yz}" fovy="{fovy}"/>
+    <camera name="frontview" mode="fixed" pos="{cx} {cy} {cz}" euler="{ex} {ey} {ez}" {intrinsics}/>
     {objects}
   </worldbody>
 </mujoco>"#,
         ph = base_top / 2.0,
         px = base[0] - 0.05,
         py = base[1],
-        fovy = CAMERA_FOVY,
     )
-}
-
-/// The camera's x (image right) and y (image up) axes for looking from `CAMERA_POS` at `CAMERA_LOOKAT`.
-fn camera_xyaxes() -> [f64; 6] {
-    let back = nalgebra::Vector3::from(CAMERA_POS) - nalgebra::Vector3::from(CAMERA_LOOKAT);
-    let z = back.normalize();
-    let x = nalgebra::Vector3::z().cross(&z).normalize();
-    let y = z.cross(&x);
-    [x[0], x[1], x[2], y[0], y[1], y[2]]
 }

@@ -53,13 +53,14 @@ impl Object {
         }
     }
 
-    /// Geometry of the object.
+    /// Geometry of the object: small enough, like the authors' objects (their footprints are at most 4 x 4 cm),
+    /// that a gripper at a fixed yaw grasps it however it lies (the Panda's fingers open to 8 cm).
     pub fn shape(self) -> Shape {
         match self {
-            Object::Milk => Shape::Box([0.022, 0.022, 0.045]),
-            Object::Bread => Shape::Box([0.040, 0.022, 0.026]),
-            Object::Cereal => Shape::Box([0.035, 0.020, 0.055]),
-            Object::Can => Shape::Cylinder { radius: 0.022, half_height: 0.040 },
+            Object::Milk => Shape::Box([0.020, 0.020, 0.050]),
+            Object::Bread => Shape::Box([0.030, 0.018, 0.025]),
+            Object::Cereal => Shape::Box([0.027, 0.016, 0.045]),
+            Object::Can => Shape::Cylinder { radius: 0.021, half_height: 0.040 },
         }
     }
 

@@ -19,6 +19,29 @@ impl Default for LossWeights {
     }
 }
 
+/// How the learning rate moves over training.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LrSchedule {
+    /// `lr` throughout (the authors').
+    #[default]
+    Constant,
+    /// A linear warm-up over `lr_warmup` steps, then a cosine decay from `lr` to 0 at the last step: for short
+    /// runs, where a large step early and a small one late both matter.
+    Cosine,
+}
+
+/// Layout of image tensors in the trunk; the numbers are the same, the speed is not.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum MemoryFormat {
+    /// Channels before rows and columns (NCHW), PyTorch's default.
+    #[default]
+    Contiguous,
+    /// Channels last (NHWC strides): faster convolutions, batch norm and pooling on CPU and on tensor cores.
+    ChannelsLast,
+}
+
 /// How to train.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -26,9 +49,14 @@ pub struct TrainConfig {
     pub steps: u64,
     pub batch_size: usize,
     pub lr: f64,
+    pub lr_schedule: LrSchedule,
+    /// Warm-up steps of the cosine schedule.
+    pub lr_warmup: u64,
     pub seed: u64,
     /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N`.
     pub device: String,
+    /// Layout of the trunk's image tensors (an execution detail like `device`: not part of a stage's key).
+    pub memory_format: MemoryFormat,
     /// Steps between validation passes (and loss-curve points).
     pub val_interval: u64,
     /// Fixed validation batches per pass.
@@ -40,7 +68,8 @@ pub struct TrainConfig {
     /// Image augmentation of training samples.
     pub augment: bool,
     pub loss: LossWeights,
-    /// Batches prepared ahead of the training step.
+    /// Batches prepared ahead of the training step on a background thread; 0 prepares each when it is needed
+    /// (faster where the cores are few: the two do not compete).
     pub prefetch: usize,
 }
 
@@ -50,8 +79,11 @@ impl Default for TrainConfig {
             steps: 60_000,
             batch_size: 30,
             lr: 5e-4,
+            lr_schedule: LrSchedule::Constant,
+            lr_warmup: 0,
             seed: 0,
             device: "auto".into(),
+            memory_format: MemoryFormat::Contiguous,
             val_interval: 1000,
             val_batches: 4,
             checkpoint_interval: 2000,
@@ -72,6 +104,9 @@ impl TrainConfig {
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             bail!("train.lr = {} must be positive", self.lr);
         }
+        if self.lr_warmup >= self.steps {
+            bail!("train.lr_warmup = {} must be below train.steps = {}", self.lr_warmup, self.steps);
+        }
         if self.val_interval == 0 || self.val_batches == 0 || self.checkpoint_interval == 0 {
             bail!("train.val_interval, train.val_batches and train.checkpoint_interval must be at least 1");
         }
@@ -89,6 +124,19 @@ impl TrainConfig {
         }
         self.device()?;
         Ok(())
+    }
+
+    /// The learning rate of `step` (1-based) of `steps`.
+    pub fn lr_at(&self, step: u64) -> f64 {
+        match self.lr_schedule {
+            LrSchedule::Constant => self.lr,
+            LrSchedule::Cosine if step <= self.lr_warmup => self.lr * step as f64 / self.lr_warmup.max(1) as f64,
+            LrSchedule::Cosine => {
+                let span = (self.steps - self.lr_warmup).max(1) as f64;
+                let f = (step - self.lr_warmup) as f64 / span;
+                self.lr * 0.5 * (1.0 + (std::f64::consts::PI * f).cos())
+            }
+        }
     }
 
     /// The torch device named by `device`.

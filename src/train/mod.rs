@@ -13,9 +13,9 @@ use crate::model::mixture::mixture_nll;
 use crate::model::policy::Policy;
 use crate::model::transformer::mixture_spec;
 use crate::seeds::derive_seed;
-use crate::sim::camera::ImageSize;
+use crate::sim::env::WorldConfig;
 use adam::Adam;
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use config::{LossWeights, TrainConfig};
 use curve::CurvePoint;
 use serde::{Deserialize, Serialize};
@@ -68,8 +68,10 @@ pub fn losses(policy: &Policy, batch: &DeviceBatch, train: bool) -> Losses {
 pub struct TrainSummary {
     pub model: ModelConfig,
     pub train: TrainConfig,
-    /// Frame size the policy was trained on.
-    pub image: ImageSize,
+    /// The world the training data was recorded in (frame size, camera, control, experts) and the JPEG quality
+    /// of its frames: evaluation runs the policy in this world and encodes its frames alike.
+    pub world: WorldConfig,
+    pub jpeg_quality: u8,
     pub steps: u64,
     pub resumed_from: Option<u64>,
     pub first_val_bc: f64,
@@ -80,11 +82,12 @@ pub struct TrainSummary {
 
 impl TrainSummary {
     /// The summary of a network saved without training (benchmarks and tests of the inference path).
-    pub fn untrained(model: ModelConfig, image: ImageSize) -> TrainSummary {
+    pub fn untrained(model: ModelConfig, world: WorldConfig, jpeg_quality: u8) -> TrainSummary {
         TrainSummary {
             model,
             train: TrainConfig::default(),
-            image,
+            world,
+            jpeg_quality,
             steps: 0,
             resumed_from: None,
             first_val_bc: 0.0,
@@ -113,15 +116,32 @@ pub struct TrainedPolicy {
     pub summary: TrainSummary,
 }
 
-/// Loads the final weights of a finished training folder onto `device`.
-pub fn load_trained(dir: &Path, device: tch::Device) -> Result<TrainedPolicy> {
+/// Loads a finished training folder onto `device`: its final weights, or those of the checkpoint at `step`.
+pub fn load_trained(dir: &Path, step: Option<u64>, device: tch::Device) -> Result<TrainedPolicy> {
     let info = dir.join(FINAL_INFO);
     let text = std::fs::read_to_string(&info)
         .with_context(|| format!("reading {} (is {} a finished training folder?)", info.display(), dir.display()))?;
-    let summary: TrainSummary = serde_json::from_str(&text).with_context(|| format!("parsing {}", info.display()))?;
+    let summary: TrainSummary = serde_json::from_str(&text).with_context(|| {
+        format!("parsing {} (a model trained by an older version records no world: train it again)", info.display())
+    })?;
     let model = ModelConfig { pretrained_backbone: None, ..summary.model.clone() };
     let (mut vars, policy) = build_policy(&model, device)?;
-    checkpoint::load(&mut vars, &dir.join(FINAL_WEIGHTS))?;
+    let weights = match step {
+        None => dir.join(FINAL_WEIGHTS),
+        Some(s) => {
+            let path = checkpoint::path_for(&dir.join(CHECKPOINT_DIR), s);
+            if !path.exists() {
+                bail!(
+                    "{} has no checkpoint at step {s} (checkpoints every {} steps of {})",
+                    dir.display(),
+                    summary.train.checkpoint_interval,
+                    summary.steps
+                );
+            }
+            path
+        }
+    };
+    checkpoint::load(&mut vars, &weights)?;
     Ok(TrainedPolicy { vars, policy, summary })
 }
 
@@ -160,7 +180,8 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("creating {}", ckpt_dir.display()))?;
 
     tch::manual_seed(derive_seed("init", &[config.seed]) as i64);
-    let (mut vs, policy) = build_policy(model, device)?;
+    let (mut vs, mut policy) = build_policy(model, device)?;
+    policy.set_channels_last(config.memory_format == config::MemoryFormat::ChannelsLast);
     let mut opt = Adam::new(&vs, config.lr);
     let resumed = checkpoint::latest(&ckpt_dir)?;
     let start = match &resumed {
@@ -194,13 +215,14 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         augment: config.augment,
         depth: config.prefetch,
     };
-    let loader = Prefetcher::start(data.clone(), spec);
+    let mut loader = Prefetcher::start(data.clone(), spec);
     let bar = crate::data::collect::progress_bar(config.steps, run.progress, "train");
     bar.set_position(start);
     let mut window = TrainWindow::default();
     for step in start + 1..=config.steps {
         // Dropout draws depend on the step alone, so a resumed run repeats the uninterrupted one exactly.
         tch::manual_seed(derive_seed("dropout", &[config.seed, step]) as i64);
+        opt.set_lr(config.lr_at(step));
         let batch: Batch = loader.next_batch()?;
         let l = losses(&policy, &batch.to_device(model, h, w, device), true);
         let total = l.total(&config.loss);
@@ -227,7 +249,8 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let summary = TrainSummary {
         model: model.clone(),
         train: config.clone(),
-        image: ImageSize { height: h, width: w },
+        world: data.world.clone(),
+        jpeg_quality: data.jpeg_quality,
         steps: config.steps,
         resumed_from: resumed.map(|(s, _)| s),
         first_val_bc: vals.first().copied().unwrap_or(f64::NAN),

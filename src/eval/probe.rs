@@ -1,0 +1,94 @@
+//! The open-loop probe: a trained policy's actions on held-out expert windows against the expert's, per action
+//! dimension. It separates "the network predicts the wrong action" from "the closed loop goes wrong".
+use crate::data::loader::build_batch;
+use crate::data::pairs::{PairDataset, Split};
+use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
+use crate::sim::action::{ACTION_DIM, ACTION_RANGES};
+use crate::train::TrainedPolicy;
+use anyhow::{Result, bail};
+use tch::{Device, Kind, Tensor};
+
+/// Mean absolute errors per action dimension, in normalised units ([-1, 1] per dimension).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbeReport {
+    /// Windows probed and actions compared (every trained position of each window).
+    pub windows: usize,
+    pub actions: usize,
+    /// The most probable component's mean against the expert's action.
+    pub mode: [f64; ACTION_DIM],
+    /// One sample of the mixture against the expert's action.
+    pub sample: [f64; ACTION_DIM],
+    /// The probed actions' own mean against each action: what ignoring the input scores.
+    pub mean_baseline: [f64; ACTION_DIM],
+}
+
+fn mae(pred: &Tensor, target: &Tensor) -> [f64; ACTION_DIM] {
+    let e = (pred - target).abs().view([-1, ACTION_DIM as i64]).mean_dim([0i64].as_slice(), false, Kind::Double);
+    std::array::from_fn(|d| e.double_value(&[d as i64]))
+}
+
+/// Probes `windows` windows of `split` (no augmentation; batches of `batch`), deterministically from `seed`.
+pub fn open_loop(
+    policy: &TrainedPolicy,
+    data: &PairDataset,
+    split: Split,
+    windows: usize,
+    batch: usize,
+    seed: u64,
+) -> Result<ProbeReport> {
+    if windows == 0 || batch == 0 {
+        bail!("the probe needs at least one window and a batch of at least one");
+    }
+    let model = policy.policy.config();
+    data.check_fits(model)?;
+    let device = policy.vars.device();
+    let (mut preds, mut samples, mut targets) = (Vec::new(), Vec::new(), Vec::new());
+    let mut done = 0;
+    for k in 0.. {
+        if done >= windows {
+            break;
+        }
+        let n = batch.min(windows - done);
+        let b = build_batch(data, split, model, n, seed, k, false)?.to_device(model, data.height, data.width, device);
+        let steps = b.actions.size()[1];
+        let out = tch::no_grad(|| policy.policy.forward_t(&b.context, &b.agent, false));
+        let trained = MixtureParams {
+            means: out.actions.means.narrow(1, 0, steps),
+            log_scales: out.actions.log_scales.narrow(1, 0, steps),
+            logits: out.actions.logits.narrow(1, 0, steps),
+        };
+        preds.push(mixture_mode(&trained).to_device(Device::Cpu));
+        samples.push(mixture_sample(&trained).to_device(Device::Cpu));
+        targets.push(b.actions.to_device(Device::Cpu));
+        done += n;
+    }
+    let (pred, sample, target) = (Tensor::cat(&preds, 0), Tensor::cat(&samples, 0), Tensor::cat(&targets, 0));
+    let flat = target.view([-1, ACTION_DIM as i64]);
+    let mean = flat.mean_dim([0i64].as_slice(), true, Kind::Float);
+    Ok(ProbeReport {
+        windows: done,
+        actions: flat.size()[0] as usize,
+        mode: mae(&pred, &target),
+        sample: mae(&sample, &target),
+        mean_baseline: mae(&mean.expand_as(&flat), &flat),
+    })
+}
+
+/// Prints the report with absolute units beside the normalised ones.
+pub fn print_probe(r: &ProbeReport) {
+    const NAMES: [&str; ACTION_DIM] = ["x", "y", "z", "angle/pi", "axis x", "axis y", "axis z", "gripper"];
+    println!("open-loop probe: {} windows, {} actions; mean absolute error (normalised units)", r.windows, r.actions);
+    println!("{:<9} {:>9} {:>9} {:>11} {:>14}", "dimension", "mode", "sample", "mean-only", "mode (absolute)");
+    for d in 0..ACTION_DIM {
+        let half_range = (ACTION_RANGES[d][1] - ACTION_RANGES[d][0]) / 2.0;
+        let unit = if d < 3 { " m" } else { "" };
+        println!(
+            "{:<9} {:>9.3} {:>9.3} {:>11.3} {:>12.4}{unit}",
+            NAMES[d],
+            r.mode[d],
+            r.sample[d],
+            r.mean_baseline[d],
+            r.mode[d] * half_range
+        );
+    }
+}
