@@ -1,7 +1,8 @@
 //! The dataset format and collection: round trips, determinism across worker counts, atomic output.
-use oneshot_lab::data::collect::{CollectConfig, collect, staging_path};
+use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
 use oneshot_lab::data::manifest::Manifest;
 use oneshot_lab::data::trajectory::Trajectory;
+use oneshot_lab::fsio::staging_sibling;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
@@ -16,7 +17,12 @@ fn scratch(name: &str) -> PathBuf {
 
 fn tiny(robot: Robot, tasks: Vec<usize>, per_task: usize) -> CollectConfig {
     let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
-    CollectConfig { tasks, per_task, world, ..CollectConfig::paper(robot) }
+    CollectConfig {
+        per_task,
+        world,
+        settings: CollectSettings { tasks, ..Default::default() },
+        ..CollectConfig::paper(robot)
+    }
 }
 
 #[test]
@@ -61,7 +67,7 @@ fn existing_output_is_refused_and_stale_staging_is_replaced() {
     std::fs::remove_dir_all(&out).unwrap();
 
     // An interrupted run leaves only the hidden staging folder, which is not a collection.
-    let staging = staging_path(&out).unwrap();
+    let staging = staging_sibling(&out).unwrap();
     std::fs::create_dir_all(staging.join("trajectories")).unwrap();
     assert!(Manifest::load(&out).is_err() && Manifest::load(&staging).is_err());
     collect(&tiny(Robot::Panda, vec![0], 1), &out, 1, false).unwrap();

@@ -1,6 +1,8 @@
 //! Closed-loop evaluation: reference policies, reproducibility, unseen layouts.
-use oneshot_lab::commands::eval::{Layouts, PolicyArg, run_eval};
 use oneshot_lab::eval::EvalConfig;
+use oneshot_lab::eval::layouts::Layouts;
+use oneshot_lab::eval::run::run_eval;
+use oneshot_lab::eval::{Policy, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
@@ -27,12 +29,12 @@ fn scratch(name: &str) -> PathBuf {
 fn the_expert_places_and_the_random_policy_does_not() {
     let none = HashSet::new();
     let (_, expert) =
-        run_eval(&PolicyArg::Expert, Some(&world()), &config(16, 80), &Layouts::Fresh(none.clone()), 2, None).unwrap();
+        run_eval(&Policy::Expert, Some(&world()), &config(16, 80), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     let placed = expert.overall.placed;
     assert!(placed.value >= 15.0 / 16.0, "expert placed {placed:?}");
     assert!(placed.low < placed.value && placed.high >= placed.value);
     let (episodes, random) =
-        run_eval(&PolicyArg::Random, Some(&world()), &config(16, 30), &Layouts::Fresh(none.clone()), 2, None).unwrap();
+        run_eval(&Policy::Random, Some(&world()), &config(16, 30), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     assert_eq!(random.overall.placed.value, 0.0);
     assert!(episodes.iter().all(|e| e.steps == 30));
     let tasks: HashSet<usize> = episodes.iter().map(|e| e.task).collect();
@@ -48,7 +50,7 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
     let summary = TrainSummary::untrained(model, world(), 90);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
-    let policy = PolicyArg::Trained { dir: dir.clone(), step: None };
+    let policy = Policy::Network(Weights { at: dir.clone(), step: None });
     let none = HashSet::new();
     let (a, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     let (b, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 1, None).unwrap();

@@ -1,11 +1,13 @@
 //! The policy network: causality, fitting a batch, checkpoints and configuration errors.
+use oneshot_lab::config::CellConfig;
 use oneshot_lab::data::loader::DeviceBatch;
+use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::policy::Policy;
 use oneshot_lab::model::resnet::ResNet18;
 use oneshot_lab::train::adam::Adam;
 use oneshot_lab::train::config::LossWeights;
-use oneshot_lab::train::{TrainFile, build_policy, checkpoint, losses};
+use oneshot_lab::train::{build_policy, checkpoint};
 use tch::{Device, Kind, Tensor, nn};
 
 fn tiny() -> ModelConfig {
@@ -25,8 +27,8 @@ fn scratch(name: &str) -> std::path::PathBuf {
 
 #[test]
 fn a_future_agent_frame_does_not_change_earlier_outputs() {
-    for architecture in [Architecture::Transformer, Architecture::TemporalConv, Architecture::ContextualLstm] {
-        future_frames_stay_invisible(ModelConfig { architecture, ..tiny() });
+    for registration in ARCHITECTURES {
+        future_frames_stay_invisible(ModelConfig { architecture: Architecture::named(registration.name), ..tiny() });
     }
 }
 
@@ -49,7 +51,7 @@ fn future_frames_stay_invisible(model: ModelConfig) {
         assert!(diff(&pa.mean, &pb.mean) < 1e-5, "the task embedding sees only the first agent frame");
     }
     let heads = a.inverse.is_some() && a.point.is_some();
-    assert_eq!(heads, model.architecture != Architecture::ContextualLstm);
+    assert_eq!(heads, policy.registration().auxiliary_heads);
     assert!(diff(&a.actions.means.narrow(1, 4, 3), &b.actions.means.narrow(1, 4, 3)) > 1e-4, "later frames do change");
 }
 
@@ -65,14 +67,14 @@ fn a_tiny_model_overfits_one_batch() {
     };
     let mut opt = Adam::new(&vs, 1e-2);
     let w = LossWeights::default();
-    let first = losses(&policy, &batch, true).bc.double_value(&[]);
-    for i in 0..1500 {
-        if i == 800 {
+    let first = policy.losses(&batch, true).bc.double_value(&[]);
+    for i in 0..2400 {
+        if i == 1200 {
             opt.set_lr(2e-3);
         }
-        opt.backward_step(&losses(&policy, &batch, true).total(&w));
+        opt.backward_step(&w.total(&policy.losses(&batch, true)));
     }
-    let last = losses(&policy, &batch, true).bc.double_value(&[]);
+    let last = policy.losses(&batch, true).bc.double_value(&[]);
     assert!(last < 0.1 * first, "BC loss {first} -> {last}");
 }
 
@@ -137,11 +139,11 @@ fn bad_training_files_name_the_key() {
     for (text, needle) in cases {
         let path = dir.join("bad.toml");
         std::fs::write(&path, text).unwrap();
-        let err = format!("{:#}", TrainFile::load(&path).unwrap_err());
+        let err = format!("{:#}", CellConfig::load(&path).unwrap_err());
         assert!(err.contains(needle) && err.contains("bad.toml"), "{text}: {err}");
     }
     std::fs::write(dir.join("bad.toml"), "[train]\n\nsteps = \"many\"\n").unwrap();
-    let err = format!("{:#}", TrainFile::load(&dir.join("bad.toml")).unwrap_err());
+    let err = format!("{:#}", CellConfig::load(&dir.join("bad.toml")).unwrap_err());
     assert!(err.contains("line 3"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

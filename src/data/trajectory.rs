@@ -9,9 +9,9 @@
 //!
 //! The header's `__metadata__` holds one key, `oneshot`, whose value is the JSON of [`TrajectoryMeta`].
 //! From Python: `safetensors.numpy.load_file(path)` and decode frames with any JPEG decoder.
+use crate::sim::milestones::Milestones;
 use crate::sim::robot::Robot;
 use crate::sim::rollout::Episode;
-use crate::sim::stages::Stages;
 use anyhow::{Context, Result, bail};
 use image::codecs::jpeg::JpegEncoder;
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
@@ -33,7 +33,7 @@ pub struct TrajectoryMeta {
     pub height: usize,
     pub width: usize,
     /// Final stages the episode achieved.
-    pub stages: Stages,
+    pub stages: Milestones,
 }
 
 /// A trajectory in memory: JPEG frames plus per-step arrays.
@@ -75,7 +75,7 @@ impl Trajectory {
             frames_jpeg.push(encode_jpeg(frame, meta.height, meta.width, jpeg_quality)?);
         }
         let obs = || episode.steps.iter().map(|s| &s.observation);
-        let stage = |s: Stages| [s.reached as u8, s.picked as u8, s.placed as u8];
+        let stage = |s: Milestones| [s.reached as u8, s.picked as u8, s.placed as u8];
         Ok(Trajectory {
             frames_jpeg,
             eef_pos: obs().map(|o| f32s(o.eef_pos)).collect(),
@@ -85,7 +85,7 @@ impl Trajectory {
             joint_vel: obs().map(|o| f32s(o.joint_vel)).collect(),
             gripper_qpos: obs().map(|o| f32s(o.gripper_qpos)).collect(),
             object_poses: obs().map(|o| o.object_poses.map(f32s)).collect(),
-            stages: obs().map(|o| stage(o.stages)).collect(),
+            stages: obs().map(|o| stage(o.milestones)).collect(),
             actions: episode.steps.iter().filter_map(|s| s.action.map(|a| f32s(a.0))).collect(),
             meta,
         })

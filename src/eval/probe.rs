@@ -49,7 +49,7 @@ pub fn open_loop(
             break;
         }
         let n = batch.min(windows - done);
-        let b = build_batch(data, split, model, n, seed, k, false)?.to_device(model, data.height, data.width, device);
+        let b = build_batch(data, split, model, n, seed, k, None)?.to_device(model, data.height, data.width, device);
         let steps = b.actions.size()[1];
         let out = tch::no_grad(|| policy.policy.forward_t(&b.context, &b.agent, false));
         let trained = MixtureParams {

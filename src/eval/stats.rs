@@ -52,6 +52,68 @@ pub fn mean_over_seeds(rates: &[f64]) -> Rate {
     Rate { value: mean, low: (mean - half).max(0.0), high: (mean + half).min(1.0), n }
 }
 
+/// How many episodes reached each stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Counts {
+    pub episodes: usize,
+    pub reached: usize,
+    pub picked: usize,
+    pub placed: usize,
+}
+
+impl Counts {
+    /// The counts of `episodes`.
+    pub fn of<'a>(episodes: impl IntoIterator<Item = &'a super::EpisodeResult>) -> Counts {
+        episodes.into_iter().fold(Counts::default(), |c, e| Counts {
+            episodes: c.episodes + 1,
+            reached: c.reached + e.reached as usize,
+            picked: c.picked + e.picked as usize,
+            placed: c.placed + e.placed as usize,
+        })
+    }
+
+    /// Both together.
+    pub fn plus(&self, o: &Counts) -> Counts {
+        Counts {
+            episodes: self.episodes + o.episodes,
+            reached: self.reached + o.reached,
+            picked: self.picked + o.picked,
+            placed: self.placed + o.placed,
+        }
+    }
+}
+
+/// Rates of the three stages.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StageRates {
+    pub reached: Rate,
+    pub picked: Rate,
+    pub placed: Rate,
+}
+
+impl StageRates {
+    /// Wilson rates of pooled counts.
+    pub fn of(c: &Counts) -> StageRates {
+        StageRates {
+            reached: wilson(c.reached, c.episodes),
+            picked: wilson(c.picked, c.episodes),
+            placed: wilson(c.placed, c.episodes),
+        }
+    }
+
+    /// The mean of per-seed rates, with Student-t intervals.
+    pub fn mean_over(per_seed: &[StageRates]) -> StageRates {
+        let mean =
+            |f: fn(&StageRates) -> Rate| mean_over_seeds(&per_seed.iter().map(|r| f(r).value).collect::<Vec<_>>());
+        StageRates { reached: mean(|r| r.reached), picked: mean(|r| r.picked), placed: mean(|r| r.placed) }
+    }
+
+    /// [reached, picked, placed].
+    pub fn rates(&self) -> [Rate; 3] {
+        [self.reached, self.picked, self.placed]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,27 +1,13 @@
 //! Aggregates of evaluation episodes: success per stage, overall and per task, pooled or as a mean over seeds.
 use super::EpisodeResult;
-use super::stats::{Rate, mean_over_seeds, wilson};
+pub use super::stats::StageRates;
+use super::stats::{Counts, Rate};
 use crate::sim::task::NUM_TASKS;
 use serde::{Deserialize, Serialize};
 
-/// Rates of the three stages.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct StageRates {
-    pub reached: Rate,
-    pub picked: Rate,
-    pub placed: Rate,
-}
-
 /// Wilson rates of the stages over `episodes`.
 pub fn pooled<'a>(episodes: impl IntoIterator<Item = &'a EpisodeResult>) -> StageRates {
-    let (mut n, mut r, mut p, mut d) = (0, 0, 0, 0);
-    for e in episodes {
-        n += 1;
-        r += e.reached as usize;
-        p += e.picked as usize;
-        d += e.placed as usize;
-    }
-    StageRates { reached: wilson(r, n), picked: wilson(p, n), placed: wilson(d, n) }
+    StageRates::of(&Counts::of(episodes))
 }
 
 /// The aggregates of one evaluation.
@@ -48,8 +34,7 @@ pub fn summarize(policy: &str, results: &[EpisodeResult]) -> EvalSummary {
 pub fn across_seeds(per_seed: &[Vec<EpisodeResult>]) -> (StageRates, StageRates) {
     let all = pooled(per_seed.iter().flatten());
     let rates: Vec<StageRates> = per_seed.iter().map(pooled).collect();
-    let mean = |f: fn(&StageRates) -> Rate| mean_over_seeds(&rates.iter().map(|r| f(r).value).collect::<Vec<_>>());
-    (all, StageRates { reached: mean(|r| r.reached), picked: mean(|r| r.picked), placed: mean(|r| r.placed) })
+    (all, StageRates::mean_over(&rates))
 }
 
 /// `value% [low, high]` of a rate.

@@ -1,14 +1,15 @@
 //! Simulation workers for lockstep evaluation: each thread owns its MuJoCo scenes and renderers, makes the
 //! demonstrator videos, and steps its agent scenes with actions chosen centrally (a network, batched) or
 //! locally (the scripted expert, the random policy).
+use super::policy::Policy;
 use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
 use crate::sim::camera::Camera;
 use crate::sim::env::{Env, WorldConfig};
 use crate::sim::expert::Expert;
+use crate::sim::milestones::Milestones;
 use crate::sim::robot::Robot;
 use crate::sim::rollout::run_expert;
-use crate::sim::stages::Stages;
 use crate::sim::task::{Instance, Task};
 use anyhow::{Context, Result, bail};
 use rand::{Rng, SeedableRng};
@@ -16,16 +17,9 @@ use rand_chacha::ChaCha8Rng;
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::thread::JoinHandle;
 
-/// Who chooses the agent's actions.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Chooser {
-    /// Actions arrive with each step command.
-    Central,
-    /// The scripted expert with privileged state (upper bound).
-    Expert,
-    /// Uniform random normalised actions (floor).
-    Random,
-}
+/// Who chooses the agent's actions: the network (centrally: actions arrive with each step command) or a
+/// reference policy inside the worker.
+pub type Chooser = Policy<()>;
 
 /// One evaluation episode: a task, the agent's layout and the demonstrator's layout.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -51,7 +45,7 @@ pub struct Started {
 /// What a worker reports after a step.
 pub struct Stepped {
     pub frame: Vec<u8>,
-    pub stages: Stages,
+    pub milestones: Milestones,
 }
 
 enum Command {
@@ -110,7 +104,7 @@ impl Worker {
             let task = Task::from_id(spec.task)?;
             let (demo_frames, demo_seed) = demonstrate(&mut self.demo_env, task, spec.demo_seed, &self.spec)?;
             slot.env.reset(&Instance::sample(task, spec.agent_seed));
-            slot.expert = (self.spec.chooser == Chooser::Expert).then(|| Expert::new(&slot.env));
+            slot.expert = (self.spec.chooser == Policy::Expert).then(|| Expert::new(&slot.env));
             slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
             let frame = slot.env.render_with(camera)?;
             out.push(Started { demo_frames, demo_seed, frame, rest_orientation: slot.env.rest_orientation() });
@@ -123,20 +117,20 @@ impl Worker {
         let camera = self.camera.as_mut().context("step before start")?;
         for (slot, command) in self.slots.iter_mut().zip(commands) {
             let Some(given) = command else {
-                out.push(Stepped { frame: Vec::new(), stages: slot.env.stages() });
+                out.push(Stepped { frame: Vec::new(), milestones: slot.env.milestones() });
                 continue;
             };
             let action = match (given, self.spec.chooser) {
                 (Some(a), _) => a,
-                (None, Chooser::Expert) => slot.expert.as_mut().expect("expert set at start").act(&slot.env),
-                (None, Chooser::Random) => {
+                (None, Policy::Expert) => slot.expert.as_mut().expect("expert set at start").act(&slot.env),
+                (None, Policy::Random) => {
                     let n: [f32; ACTION_DIM] = std::array::from_fn(|_| slot.rng.random_range(-1.0..=1.0));
                     Action::from_normalized(&n)
                 }
-                (None, Chooser::Central) => bail!("central chooser sent no action"),
+                (None, Policy::Network(())) => bail!("the network sent no action"),
             };
             slot.env.step(&action);
-            out.push(Stepped { frame: slot.env.render_with(camera)?, stages: slot.env.stages() });
+            out.push(Stepped { frame: slot.env.render_with(camera)?, milestones: slot.env.milestones() });
         }
         Ok(out)
     }
@@ -147,7 +141,7 @@ fn demonstrate(env: &mut Env, task: Task, seed: u64, spec: &WorkerSpec) -> Resul
     for attempt in 0..spec.demo_attempts {
         let s = if attempt == 0 { seed } else { derive_seed("eval-demo-retry", &[seed, attempt as u64]) };
         let episode = run_expert(env, &Instance::sample(task, s), spec.demo_max_actions, true)?;
-        if episode.stages.placed {
+        if episode.milestones.placed {
             let frames = episode.steps.into_iter().map(|s| s.frame.expect("rendered")).collect();
             return Ok((frames, s));
         }

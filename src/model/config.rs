@@ -1,4 +1,5 @@
-//! Model settings, with the paper's values (design.md section 3) as defaults.
+//! Model settings, with the paper's values (section 4 and the authors' `experiments/base.yaml`) as defaults.
+use super::architectures::{self, Registration};
 use anyhow::{Result, bail};
 use serde::{Deserialize, Serialize};
 
@@ -15,17 +16,28 @@ pub enum ContextMode {
     Final,
 }
 
-/// How frames exchange information (the architecture ablation).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Architecture {
-    /// Non-local attention over all tokens of all frames (the paper's model).
-    #[default]
-    Transformer,
-    /// The paper's "no attention" ablation: causal bottleneck blocks around a 5x5x5 spatio-temporal convolution.
-    TemporalConv,
-    /// The paper's Contextual-LSTM baseline (behaviour cloning only: no inverse or point head).
-    ContextualLstm,
+/// The policy architecture: a name registered in [`super::architectures::ARCHITECTURES`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Architecture(pub String);
+
+impl Architecture {
+    /// The architecture registered as `name`.
+    pub fn named(name: &str) -> Architecture {
+        Architecture(name.to_string())
+    }
+
+    /// Its registry entry; none for a name nobody registered.
+    pub fn registration(&self) -> Option<&'static Registration> {
+        architectures::find(&self.0)
+    }
+}
+
+impl Default for Architecture {
+    /// The paper's transformer.
+    fn default() -> Self {
+        Architecture::named(architectures::transformer::TRANSFORMER.name)
+    }
 }
 
 /// Architecture and head sizes.
@@ -73,7 +85,7 @@ pub struct ModelConfig {
 impl Default for ModelConfig {
     fn default() -> Self {
         ModelConfig {
-            architecture: Architecture::Transformer,
+            architecture: Architecture::default(),
             backbone_width: 64,
             backbone_stages: 4,
             pretrained_backbone: None,
@@ -108,6 +120,13 @@ impl ModelConfig {
 
     /// Checks ranges; errors name the key.
     pub fn validate(&self) -> Result<()> {
+        if self.architecture.registration().is_none() {
+            bail!(
+                "model.architecture = {:?} is not one of the registered architectures: {}",
+                self.architecture.0,
+                architectures::names().join(", ")
+            );
+        }
         let positive = [
             ("backbone_width", self.backbone_width),
             ("attention_inner", self.attention_inner),

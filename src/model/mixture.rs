@@ -1,5 +1,7 @@
 //! The discretised logistic mixture action head (PixelCNN++ style, as in the paper's code): per action dimension a
 //! mixture of logistics over [-1, 1] cut into `bins` classes, with a learned constant log-scale per dimension.
+use super::config::ModelConfig;
+use crate::sim::action::ACTION_DIM;
 use tch::nn::{self, Module};
 use tch::{Kind, Tensor};
 
@@ -17,6 +19,18 @@ pub struct MixtureSpec {
     pub mixtures: i64,
     pub bins: i64,
     pub log_scale_min: f64,
+}
+
+impl MixtureSpec {
+    /// The action distribution of a model: one mixture per action dimension.
+    pub fn for_model(config: &ModelConfig) -> MixtureSpec {
+        MixtureSpec {
+            dims: ACTION_DIM as i64,
+            mixtures: config.mixtures,
+            bins: config.bins,
+            log_scale_min: config.log_scale_min,
+        }
+    }
 }
 
 /// Maps a hidden vector to mixture parameters.

@@ -1,9 +1,9 @@
-//! The policy network in libtorch: trunk, attention, embeddings and heads.
+//! The policy networks in libtorch: shared parts (trunk, attention, embeddings, heads) and the architectures
+//! built from them.
+pub mod architectures;
 pub mod attention;
 pub mod config;
 pub mod heads;
-pub mod lstm;
 pub mod mixture;
 pub mod policy;
 pub mod resnet;
-pub mod transformer;

@@ -1,41 +1,83 @@
-//! The policy behind a configuration: the paper's transformer (or its temporal-conv ablation) or the
-//! Contextual-LSTM baseline, with one forward interface for training and evaluation.
-use super::config::{Architecture, ModelConfig};
-use super::lstm::ContextualLstm;
-use super::transformer::{PolicyOutput, TransformerPolicy};
-use tch::{Tensor, nn};
+//! The interface every policy architecture implements, and the policy a configuration builds through the
+//! registry in [`super::architectures`].
+use super::architectures::Registration;
+use super::config::ModelConfig;
+use super::heads::{PointPrediction, point_nll};
+use super::mixture::{MixtureParams, MixtureSpec, mixture_nll};
+use crate::data::loader::DeviceBatch;
+use tch::{Kind, Tensor, nn};
 
-#[derive(Debug)]
-enum Net {
-    Transformer(Box<TransformerPolicy>),
-    ContextualLstm(Box<ContextualLstm>),
+/// What one forward pass predicts.
+pub struct PolicyOutput {
+    /// Action distribution at every agent frame: `[B, Ta, 8, mixtures]`.
+    pub actions: MixtureParams,
+    /// Inverse-dynamics distribution for each consecutive pair of agent frames: `[B, Ta - 1, 8, mixtures]`
+    /// (architectures without the head: none).
+    pub inverse: Option<MixtureParams>,
+    /// End-effector pixel at the end of the window (architectures without the head: none).
+    pub point: Option<PointPrediction>,
+}
+
+/// The training losses of one batch; a loss whose head the architecture lacks is zero.
+pub struct Losses {
+    /// Behaviour cloning: NLL of the expert's actions at the agent positions that have one.
+    pub bc: Tensor,
+    /// Inverse dynamics: NLL of each action from the frames before and after it.
+    pub inverse: Tensor,
+    /// NLL of the end-effector pixel at the end of the window.
+    pub point: Tensor,
+}
+
+/// A policy architecture: how it is queried for actions and how it is trained.
+pub trait PolicyNet: std::fmt::Debug + Send {
+    /// Predictions for `context` `[B, Tc, 3, H, W]` and agent frames `[B, Ta, 3, H, W]`; agent frame t's outputs
+    /// depend only on the context and agent frames 0..=t.
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput;
+
+    /// Runs the image trunk on channels-last tensors (see [`super::resnet::ResNet18::set_channels_last`]).
+    fn set_channels_last(&mut self, on: bool);
+
+    /// The losses of `batch`; by default the NLL of every head [`Self::forward_t`] returns.
+    fn losses(&self, batch: &DeviceBatch, spec: MixtureSpec, train: bool) -> Losses {
+        head_losses(&self.forward_t(&batch.context, &batch.agent, train), batch, spec)
+    }
+}
+
+/// The NLL of each head of `out` on `batch` (the paper's Sec. 3 objectives).
+pub fn head_losses(out: &PolicyOutput, batch: &DeviceBatch, spec: MixtureSpec) -> Losses {
+    let zero = || Tensor::zeros([], (Kind::Float, batch.actions.device()));
+    let steps = batch.actions.size()[1];
+    let acted = MixtureParams {
+        means: out.actions.means.narrow(1, 0, steps),
+        log_scales: out.actions.log_scales.narrow(1, 0, steps),
+        logits: out.actions.logits.narrow(1, 0, steps),
+    };
+    Losses {
+        bc: mixture_nll(&acted, &batch.actions, spec),
+        inverse: out.inverse.as_ref().map_or_else(zero, |p| mixture_nll(p, &batch.actions, spec)),
+        point: out.point.as_ref().map_or_else(zero, |p| point_nll(p, &batch.points)),
+    }
 }
 
 /// A policy network and the configuration it was built from.
 #[derive(Debug)]
 pub struct Policy {
     config: ModelConfig,
-    net: Net,
+    registration: &'static Registration,
+    net: Box<dyn PolicyNet>,
 }
 
 impl Policy {
-    /// Builds the network of `config` under `vs` (call `config.validate()` first).
+    /// Builds the network of `config` under `vs` (call `config.validate()` first, which checks the architecture
+    /// is registered).
     pub fn new(vs: &nn::Path, config: &ModelConfig) -> Policy {
-        let net = match config.architecture {
-            Architecture::ContextualLstm => Net::ContextualLstm(Box::new(ContextualLstm::new(vs, config))),
-            Architecture::Transformer | Architecture::TemporalConv => {
-                Net::Transformer(Box::new(TransformerPolicy::new(vs, config)))
-            }
-        };
-        Policy { config: config.clone(), net }
+        let registration = config.architecture.registration().expect("model.architecture validated");
+        Policy { config: config.clone(), registration, net: (registration.build)(vs, config) }
     }
 
-    /// Runs the trunk on channels-last tensors (see [`super::resnet::ResNet18::set_channels_last`]).
+    /// Runs the trunk on channels-last tensors.
     pub fn set_channels_last(&mut self, on: bool) {
-        match &mut self.net {
-            Net::Transformer(t) => t.trunk_mut().set_channels_last(on),
-            Net::ContextualLstm(l) => l.trunk_mut().set_channels_last(on),
-        }
+        self.net.set_channels_last(on)
     }
 
     /// The settings this network was built with.
@@ -43,14 +85,18 @@ impl Policy {
         &self.config
     }
 
-    /// Predictions for `context` `[B, Tc, 3, H, W]` and agent frames `[B, Ta, 3, H, W]`; agent frame t's outputs
-    /// depend only on the context and agent frames 0..=t.
+    /// The registry entry of its architecture.
+    pub fn registration(&self) -> &'static Registration {
+        self.registration
+    }
+
+    /// See [`PolicyNet::forward_t`].
     pub fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
-        match &self.net {
-            Net::Transformer(t) => t.forward_t(context, agent, train),
-            Net::ContextualLstm(l) => {
-                PolicyOutput { actions: l.forward_t(context, agent, train), inverse: None, point: None }
-            }
-        }
+        self.net.forward_t(context, agent, train)
+    }
+
+    /// See [`PolicyNet::losses`].
+    pub fn losses(&self, batch: &DeviceBatch, train: bool) -> Losses {
+        self.net.losses(batch, MixtureSpec::for_model(&self.config), train)
     }
 }

@@ -1,7 +1,22 @@
-//! The experiment orchestrator: stage graph, content keys, the SQLite results store and execution.
-pub mod execute;
+//! The experiment orchestrator: the stage graph and its content keys, the stage kinds, the SQLite results store,
+//! and execution (locally or on Slurm) by the scheduler.
+pub mod executor;
+pub mod gc;
 pub mod graph;
 pub mod key;
 pub mod scheduler;
 pub mod slurm;
+pub mod stages;
 pub mod store;
+
+use crate::config::Experiment;
+use anyhow::Result;
+use graph::Plan;
+use std::path::Path;
+
+/// Loads an experiment file (with an optional scale profile) and expands it into its plan.
+pub fn load_plan(file: &Path, profile: Option<&str>) -> Result<(Experiment, Plan)> {
+    let experiment = Experiment::load(file, profile)?;
+    let plan = stages::plan(&experiment);
+    Ok((experiment, plan))
+}

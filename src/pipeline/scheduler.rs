@@ -1,13 +1,15 @@
 //! Executes the missing stages of a plan: in dependency order, up to `jobs` at once, claiming each in the store so
 //! that concurrent runs never execute a stage twice; a failure stops only the stages below it.
-use super::execute::{ExecContext, execute};
-use super::graph::{EvalTarget, Job, Plan, Stage, short};
-use super::slurm::{SlurmOptions, run_job};
-use super::store::{Claim, StageResults, StageState, Store};
+use super::executor::{Executor, Local};
+use super::graph::{Plan, Stage, short};
+use super::slurm::{Slurm, SlurmOptions};
+use super::stages::StageOutputs;
+use super::store::{Claim, StageState, Store};
 use anyhow::Result;
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::channel;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, Sender, channel};
 use std::time::{Duration, Instant};
 
 /// How to run.
@@ -63,43 +65,22 @@ pub fn matches(pattern: &str, label: &str) -> bool {
     rest.is_empty()
 }
 
-/// `cell/kind` labels of every stage (a shared stage has several).
-pub fn labels(plan: &Plan) -> HashMap<String, Vec<String>> {
-    let mut out: HashMap<String, Vec<String>> = HashMap::new();
-    for c in &plan.cells {
-        let keys = [(&c.collect_demo, "collect"), (&c.collect_agent, "collect"), (&c.train, "train")];
-        for (k, kind) in keys {
-            if let Some(k) = k {
-                out.entry(k.clone()).or_default().push(format!("{}/{kind}", c.name));
-            }
-        }
-        out.entry(c.eval.clone()).or_default().push(format!("{}/eval", c.name));
-        for (step, k) in &c.checkpoints {
-            out.entry(k.clone()).or_default().push(format!("{}/eval@{step}", c.name));
-        }
-    }
-    out
+/// A readable name of a stage: its first label, the job's detail and the short key.
+pub fn display_name(stage: &Stage, labels: &BTreeMap<String, Vec<String>>) -> String {
+    let label = labels.get(&stage.key).and_then(|l| l.first()).cloned().unwrap_or_else(|| stage.kind().name().into());
+    let detail = stage.job.detail();
+    let detail = if detail.is_empty() { detail } else { format!(" {detail}") };
+    format!("{label}{detail} [{}]", short(&stage.key))
 }
 
-/// A readable name of a stage: its first label and short key.
-pub fn display_name(stage: &Stage, labels: &HashMap<String, Vec<String>>) -> String {
-    let label = labels.get(&stage.key).and_then(|l| l.first()).cloned().unwrap_or_else(|| stage.kind.name().into());
-    let robot = match &stage.job {
-        Job::Collect(c) => format!(" {}", c.robot),
-        _ => String::new(),
-    };
-    format!("{label}{robot} [{}]", short(&stage.key))
+fn labelled(labels: &BTreeMap<String, Vec<String>>, key: &str, pattern: &str) -> bool {
+    labels.get(key).is_some_and(|ls| ls.iter().any(|l| matches(pattern, l)))
 }
 
 /// The keys to consider: the matching cells' stages and all they depend on, in plan order.
-fn selected(plan: &Plan, only: Option<&str>, labels: &HashMap<String, Vec<String>>) -> Vec<String> {
+fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String, Vec<String>>) -> Vec<String> {
     let Some(p) = only else { return plan.order.clone() };
-    let mut want: HashSet<String> = plan
-        .order
-        .iter()
-        .filter(|k| labels.get(*k).is_some_and(|ls| ls.iter().any(|l| matches(p, l))))
-        .cloned()
-        .collect();
+    let mut want: HashSet<String> = plan.order.iter().filter(|k| labelled(labels, k, p)).cloned().collect();
     for k in plan.order.iter().rev() {
         if want.contains(k) {
             want.extend(plan.stages[k].upstream.iter().cloned());
@@ -108,8 +89,15 @@ fn selected(plan: &Plan, only: Option<&str>, labels: &HashMap<String, Vec<String
     plan.order.iter().filter(|k| want.contains(*k)).cloned().collect()
 }
 
-fn needs_gpu(stage: &Stage) -> bool {
-    matches!(stage.job, Job::Train { .. } | Job::Eval { target: EvalTarget::Trained { .. }, .. })
+/// The stages `--force` re-runs: the matching ones and everything below them.
+fn forced(
+    plan: &Plan,
+    keys: &[String],
+    force: Option<&str>,
+    labels: &BTreeMap<String, Vec<String>>,
+) -> HashSet<String> {
+    let Some(p) = force else { return HashSet::new() };
+    keys.iter().filter(|k| labelled(labels, k, p)).flat_map(|k| plan.downstream(k)).collect()
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -120,143 +108,198 @@ enum Status {
     Failed,
 }
 
-/// Runs what is missing of `plan` against the store at `root`.
-pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
-    let mut store = Store::open(root)?;
-    let labels = labels(plan);
-    let keys = selected(plan, opts.only.as_deref(), &labels);
-    let mut forced: HashSet<String> = HashSet::new();
-    if let Some(p) = &opts.force {
-        for k in &keys {
-            if labels.get(k).is_some_and(|ls| ls.iter().any(|l| matches(p, l))) {
-                forced.extend(plan.downstream(k));
-            }
-        }
-    }
-    store.register(&keys.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
+/// A finished execution: stage key, store attempt, the GPU it held, and the outcome.
+type Finished = (String, i64, Option<String>, Result<(PathBuf, StageOutputs)>);
 
-    let mut report = RunReport::default();
-    let mut status: HashMap<String, Status> = HashMap::new();
-    for k in &keys {
-        let s = match (store.state(k)?, forced.contains(k)) {
-            (StageState::Done, false) => match store.artifact(k)? {
-                Some(a) if a.exists() => Status::Done(a),
-                _ => Status::Pending,
-            },
+/// The state of one run.
+struct Scheduler<'a> {
+    plan: &'a Plan,
+    store: Store,
+    labels: BTreeMap<String, Vec<String>>,
+    keys: Vec<String>,
+    forced: HashSet<String>,
+    status: HashMap<String, Status>,
+    report: RunReport,
+    executor: Arc<dyn Executor>,
+    jobs: usize,
+    free_gpus: Vec<String>,
+    use_gpus: bool,
+    running: usize,
+    started: usize,
+    total: usize,
+    clock: Instant,
+    tx: Sender<Finished>,
+    rx: Receiver<Finished>,
+}
+
+impl Scheduler<'_> {
+    /// Whether stage `key` needs to run (not cached, or forced).
+    fn initial_status(&self, key: &str) -> Result<Status> {
+        if self.forced.contains(key) || self.store.state(key)? != StageState::Done {
+            return Ok(Status::Pending);
+        }
+        Ok(match self.store.artifact(key)? {
+            Some(a) if a.exists() => Status::Done(a),
             _ => Status::Pending,
-        };
-        if let Status::Done(_) = s {
-            report.cached.push(k.clone());
-        }
-        status.insert(k.clone(), s);
-    }
-    if opts.dry_run {
-        report.would_run = keys.iter().filter(|k| status[*k] == Status::Pending).cloned().collect();
-        return Ok(report);
+        })
     }
 
-    let total = keys.iter().filter(|k| status[*k] == Status::Pending).count();
-    let mut started = 0;
-    let mut free_gpus: Vec<String> = opts.gpus.iter().rev().cloned().collect();
-    let (tx, rx) = channel::<(String, i64, Option<String>, Result<(PathBuf, StageResults)>)>();
-    let mut running = 0usize;
-    let jobs = opts.jobs.max(1);
-    let clock = Instant::now();
-    loop {
-        // Start whatever is ready.
+    /// Starts every ready stage while job slots (and GPUs, where needed) are free; returns whether a stage is
+    /// held by another process.
+    fn start_ready(&mut self) -> Result<bool> {
         let mut waiting_on_others = false;
-        for k in &keys {
-            if status[k] != Status::Pending || running >= jobs {
+        for k in self.keys.clone() {
+            if self.status[&k] != Status::Pending || self.running >= self.jobs {
                 continue;
             }
-            let stage = &plan.stages[k];
-            let ups: Vec<&Status> = stage.upstream.iter().map(|u| status.get(u).unwrap_or(&Status::Failed)).collect();
-            if ups.iter().any(|s| **s == Status::Failed) {
-                status.insert(k.clone(), Status::Failed);
-                report.skipped.push(k.clone());
+            let stage = &self.plan.stages[&k];
+            let ups: Vec<&Status> =
+                stage.upstream.iter().map(|u| self.status.get(u).unwrap_or(&Status::Failed)).collect();
+            if ups.contains(&&Status::Failed) {
+                self.status.insert(k.clone(), Status::Failed);
+                self.report.skipped.push(k);
                 continue;
             }
             if !ups.iter().all(|s| matches!(s, Status::Done(_))) {
                 continue;
             }
-            let gpu = if needs_gpu(stage) && !opts.gpus.is_empty() {
-                match free_gpus.pop() {
+            let gpu = if stage.job.needs_gpu() && self.use_gpus {
+                match self.free_gpus.pop() {
                     Some(g) => Some(g),
                     None => continue,
                 }
             } else {
                 None
             };
-            match store.claim(k, forced.contains(k))? {
+            match self.store.claim(&k, self.forced.contains(&k))? {
                 Claim::AlreadyDone => {
-                    let a = store.artifact(k)?.unwrap_or_default();
-                    status.insert(k.clone(), Status::Done(a));
-                    report.cached.push(k.clone());
-                    free_gpus.extend(gpu);
+                    let a = self.store.artifact(&k)?.unwrap_or_default();
+                    self.status.insert(k.clone(), Status::Done(a));
+                    self.report.cached.push(k);
+                    self.free_gpus.extend(gpu);
                 }
                 Claim::Busy => {
                     waiting_on_others = true;
-                    free_gpus.extend(gpu);
+                    self.free_gpus.extend(gpu);
                 }
-                Claim::Acquired(attempt) => {
-                    started += 1;
-                    eprintln!("[{started}/{total}] {} {} ...", stage.kind.name(), display_name(stage, &labels));
-                    let artifacts = status
-                        .iter()
-                        .filter_map(|(k, s)| match s {
-                            Status::Done(a) => Some((k.clone(), a.clone())),
-                            _ => None,
-                        })
-                        .collect();
-                    let ctx = ExecContext {
-                        root: root.to_path_buf(),
-                        artifacts,
-                        workers: opts.workers.max(1),
-                        device: gpu.clone(),
-                        progress: opts.progress && jobs == 1 && opts.slurm.is_none(),
-                    };
-                    let (tx, stage, key, slurm) = (tx.clone(), stage.clone(), k.clone(), opts.slurm.clone());
-                    std::thread::spawn(move || {
-                        let result = match &slurm {
-                            Some(s) => run_job(&stage, &ctx, s),
-                            None => execute(&stage, &ctx),
-                        };
-                        let _ = tx.send((key, attempt, gpu, result));
-                    });
-                    status.insert(k.clone(), Status::Running);
-                    running += 1;
-                }
+                Claim::Acquired(attempt) => self.launch(&k, attempt, gpu),
             }
         }
-        if running == 0 && !waiting_on_others {
-            break;
-        }
-        // Wait for a stage of ours to finish, or poll stages that another process is running.
-        let Ok((key, attempt, gpu, result)) = rx.recv_timeout(Duration::from_secs(2)) else { continue };
-        running -= 1;
-        free_gpus.extend(gpu);
-        let stage = &plan.stages[&key];
+        Ok(waiting_on_others)
+    }
+
+    /// Runs stage `key` on a thread of its own.
+    fn launch(&mut self, key: &str, attempt: i64, gpu: Option<String>) {
+        let stage = self.plan.stages[key].clone();
+        self.started += 1;
+        eprintln!(
+            "[{}/{}] {} {} ...",
+            self.started,
+            self.total,
+            stage.kind().name(),
+            display_name(&stage, &self.labels)
+        );
+        let upstream: HashMap<String, PathBuf> = stage
+            .upstream
+            .iter()
+            .filter_map(|u| match &self.status[u] {
+                Status::Done(a) => Some((u.clone(), a.clone())),
+                _ => None,
+            })
+            .collect();
+        self.status.insert(key.to_string(), Status::Running);
+        let (tx, executor, key) = (self.tx.clone(), self.executor.clone(), key.to_string());
+        std::thread::spawn(move || {
+            let result = executor.execute(&stage, &upstream, gpu.clone());
+            let _ = tx.send((key, attempt, gpu, result));
+        });
+        self.running += 1;
+    }
+
+    /// Records a finished execution in the store.
+    fn finish(&mut self, (key, attempt, gpu, result): Finished) -> Result<()> {
+        self.running -= 1;
+        self.free_gpus.extend(gpu);
+        let name = display_name(&self.plan.stages[&key], &self.labels);
         match result {
-            Ok((artifact, results)) => {
-                store.complete(&key, attempt, &artifact, &results)?;
-                eprintln!(
-                    "    done: {} ({:.0} s into the run)",
-                    display_name(stage, &labels),
-                    clock.elapsed().as_secs_f64()
-                );
-                status.insert(key.clone(), Status::Done(artifact));
-                report.executed.push(key);
+            Ok((artifact, outputs)) => {
+                self.store.complete(&key, attempt, &artifact, &outputs)?;
+                eprintln!("    done: {name} ({:.0} s into the run)", self.clock.elapsed().as_secs_f64());
+                self.status.insert(key.clone(), Status::Done(artifact));
+                self.report.executed.push(key);
             }
             Err(e) => {
                 let msg = format!("{e:#}");
-                store.fail(&key, attempt, &msg)?;
-                eprintln!("    FAILED: {}: {msg}", display_name(stage, &labels));
-                status.insert(key.clone(), Status::Failed);
-                report.failed.push((key, msg));
+                self.store.fail(&key, attempt, &msg)?;
+                eprintln!("    FAILED: {name}: {msg}");
+                self.status.insert(key.clone(), Status::Failed);
+                self.report.failed.push((key, msg));
             }
         }
+        Ok(())
     }
-    Ok(report)
+}
+
+/// Runs what is missing of `plan` against the store at `root`.
+pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
+    let mut store = Store::open(root)?;
+    let labels = plan.labels();
+    let keys = selected(plan, opts.only.as_deref(), &labels);
+    let forced = forced(plan, &keys, opts.force.as_deref(), &labels);
+    store.register(&keys.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
+    let jobs = opts.jobs.max(1);
+    let executor: Arc<dyn Executor> = match &opts.slurm {
+        Some(s) => Arc::new(Slurm { options: s.clone(), root: root.to_path_buf(), workers: opts.workers.max(1) }),
+        None => Arc::new(Local {
+            root: root.to_path_buf(),
+            workers: opts.workers.max(1),
+            progress: opts.progress && jobs == 1,
+        }),
+    };
+    let (tx, rx) = channel();
+    let mut s = Scheduler {
+        plan,
+        store,
+        labels,
+        keys,
+        forced,
+        status: HashMap::new(),
+        report: RunReport::default(),
+        executor,
+        jobs,
+        free_gpus: opts.gpus.iter().rev().cloned().collect(),
+        use_gpus: !opts.gpus.is_empty(),
+        running: 0,
+        started: 0,
+        total: 0,
+        clock: Instant::now(),
+        tx,
+        rx,
+    };
+    for k in s.keys.clone() {
+        let status = s.initial_status(&k)?;
+        if let Status::Done(_) = status {
+            s.report.cached.push(k.clone());
+        }
+        s.status.insert(k, status);
+    }
+    let pending: Vec<String> = s.keys.iter().filter(|k| s.status[*k] == Status::Pending).cloned().collect();
+    if opts.dry_run {
+        s.report.would_run = pending;
+        return Ok(s.report);
+    }
+    s.total = pending.len();
+    loop {
+        let waiting_on_others = s.start_ready()?;
+        if s.running == 0 && !waiting_on_others {
+            break;
+        }
+        // Wait for a stage of ours to finish, or poll stages that another process is running.
+        if let Ok(finished) = s.rx.recv_timeout(Duration::from_secs(2)) {
+            s.finish(finished)?;
+        }
+    }
+    Ok(s.report)
 }
 
 #[cfg(test)]

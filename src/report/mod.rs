@@ -6,6 +6,7 @@ pub mod tables;
 
 use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
+use crate::pipeline::store::read::ExperimentRecord;
 use anyhow::{Context, Result};
 use data::ResultRow;
 use std::fmt::Write as _;
@@ -39,20 +40,12 @@ fn context_table(rows: &[&ResultRow]) -> String {
 
 /// Writes every table and figure of `experiment` into `out` (replacing it as a whole once complete).
 pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
-    let cells = data::cells(store, experiment)?;
+    let cells = store.cells(experiment)?;
     let rows = data::rows(&cells);
-    let (file, description, profile): (String, String, Option<String>) = store.conn().query_row(
-        "SELECT file, description, profile FROM experiments WHERE name = ?1",
-        [experiment],
-        |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
-    )?;
-    let parent = out.parent().context("report folder has a parent")?;
-    std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
-    let staging = parent.join(format!(".{experiment}.partial"));
-    if staging.exists() {
-        std::fs::remove_dir_all(&staging)?;
-    }
-    std::fs::create_dir_all(&staging)?;
+    let ExperimentRecord { file, description, profile } = store.experiment(experiment)?;
+    let staging = crate::fsio::staging_sibling(out)?;
+    crate::fsio::remove_dir_if_present(&staging)?;
+    std::fs::create_dir_all(&staging).with_context(|| format!("creating {}", staging.display()))?;
     let write = |name: &str, text: &str| -> Result<()> {
         std::fs::write(staging.join(name), text).with_context(|| format!("writing {name}"))
     };
@@ -70,7 +63,7 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     let mut curves = Vec::new();
     for r in &at_largest {
         if let Some(k) = r.train_keys.first() {
-            let c = data::curve(store, k)?;
+            let c = store.curve(k)?;
             if !c.is_empty() {
                 curves.push((r.label.clone(), c));
             }
@@ -117,9 +110,6 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
               its upstream keys; `oneshot-lab why KEY` shows a stage's inputs.\n";
     write("index.md", &index)?;
 
-    if out.exists() {
-        std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
-    }
-    std::fs::rename(&staging, out).with_context(|| format!("moving the report to {}", out.display()))?;
+    crate::fsio::publish_dir(&staging, out)?;
     Ok(())
 }

@@ -1,4 +1,4 @@
-//! The paper's published numbers (design.md section 5), matched to our rows where the configuration is the same.
+//! The paper's published numbers (Table 1 and section 5.3), matched to our rows where the configuration is the same.
 use super::data::ResultRow;
 
 /// Table 1, "ours": (reach, pick, place) in % with the paper's +- half-widths, at N = 1600 with the full model.

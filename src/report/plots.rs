@@ -1,7 +1,8 @@
 //! The report's figures, drawn as SVG with `plotters` and rasterised to PNG with `resvg` (using the DejaVu Sans
 //! font shipped in `assets/fonts`, so PNGs look the same on every machine).
-use super::data::{CurveRow, ResultRow, StepCurve};
+use super::data::{ResultRow, StepCurve};
 use super::paper::paper_placed;
+use crate::pipeline::store::read::CurveRow;
 use anyhow::{Context, Result};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -48,6 +49,22 @@ where
         paint(root).map_err(|e| anyhow::anyhow!("drawing {name}: {e}"))?;
     }
     save(dir, name, &svg)
+}
+
+/// Draws the series legend of `chart` in the style every figure shares.
+fn draw_legend<'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, SVGBackend<'a>, CT>,
+    position: SeriesLabelPosition,
+    font_size: u32,
+) -> Result<(), Box<dyn std::error::Error>> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font(("sans-serif", font_size))
+        .draw()?;
+    Ok(())
 }
 
 /// Bars of `placed` (with 95% whiskers) for every row, `missing` written where a row has no results; the paper's
@@ -117,13 +134,7 @@ pub fn success_bars(dir: &Path, rows: &[ResultRow]) -> Result<()> {
                 .label("paper (Table 1)")
                 .legend(|(x, y)| Cross::new((x + 7, y), 6, PAPER.stroke_width(3)));
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 15))
-            .draw()?;
-        Ok(())
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 15)
     })
 }
 
@@ -179,13 +190,7 @@ pub fn success_vs_size(dir: &Path, rows: &[ResultRow]) -> Result<()> {
                 .label("paper (Table 1)")
                 .legend(|(x, y)| Cross::new((x + 7, y), 6, PAPER.stroke_width(3)));
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 15))
-            .draw()?;
-        Ok(())
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 15)
     })
 }
 
@@ -234,13 +239,7 @@ pub fn success_vs_steps(dir: &Path, curves: &[StepCurve]) -> Result<()> {
                 chart.draw_series(pts.iter().map(|(x, p)| Circle::new((*x, p[0]), 4, colour.filled())))?;
             }
             if stage == 2 && !curves.is_empty() {
-                chart
-                    .configure_series_labels()
-                    .position(SeriesLabelPosition::UpperLeft)
-                    .background_style(WHITE.mix(0.9))
-                    .border_style(BLACK)
-                    .label_font(("sans-serif", 13))
-                    .draw()?;
+                draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)?;
             }
         }
         Ok(())
@@ -285,12 +284,6 @@ pub fn loss_curves(dir: &Path, curves: &[(String, Vec<CurveRow>)]) -> Result<()>
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
             }
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 15))
-            .draw()?;
-        Ok(())
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 15)
     })
 }

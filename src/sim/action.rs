@@ -1,5 +1,5 @@
 //! The 8-D action: an absolute end-effector target [x, y, z, angle/pi, axis_x, axis_y, axis_z, gripper],
-//! and its normalisation to [-1, 1] (design.md, from the paper's code).
+//! and its normalisation to [-1, 1] (ranges from the authors' `custom_ik_wrapper.py`).
 use serde::{Deserialize, Serialize};
 
 /// Number of action dimensions.

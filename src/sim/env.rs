@@ -4,10 +4,10 @@ use super::action::Action;
 use super::camera::{Camera, ImageSize, project};
 use super::ids::SceneIds;
 use super::ik::IkSolver;
+use super::milestones::{MilestoneInputs, Milestones};
 use super::robot::Robot;
 use super::rotation::{downward, from_angle_axis, mat_from_mj, to_angle_axis, yaw_of};
 use super::scene::{Visuals, build_model};
-use super::stages::{StageInputs, Stages};
 use super::task::{Instance, NUM_OBJECTS, in_quadrant};
 use anyhow::{Result, bail};
 use mujoco_rs::prelude::*;
@@ -115,7 +115,7 @@ pub struct Observation {
     pub gripper_qpos: [f64; 2],
     /// Pose (x, y, z, qw, qx, qy, qz) of each object, in `Object::ALL` order.
     pub object_poses: [[f64; 7]; NUM_OBJECTS],
-    pub stages: Stages,
+    pub milestones: Milestones,
 }
 
 /// A simulated robot in the bins scene.
@@ -128,7 +128,7 @@ pub struct Env {
     camera: Option<Camera>,
     instance: Option<Instance>,
     start_z: f64,
-    stages: Stages,
+    milestones: Milestones,
     q_target: [f64; 7],
     gripper: f64,
     rest_yaw: f64,
@@ -156,7 +156,7 @@ impl Env {
             camera,
             instance: None,
             start_z: 0.0,
-            stages: Stages::default(),
+            milestones: Milestones::default(),
             q_target: robot.spec().init_qpos,
             gripper: -1.0,
             rest_yaw: yaw_of(&rest_rot),
@@ -199,9 +199,9 @@ impl Env {
         self.instance.as_ref()
     }
 
-    /// Stages achieved so far in this episode.
-    pub fn stages(&self) -> Stages {
-        self.stages
+    /// Milestones achieved so far in this episode.
+    pub fn milestones(&self) -> Milestones {
+        self.milestones
     }
 
     /// Starts an episode: robot at its initial pose with the gripper open, objects laid out, settled.
@@ -231,7 +231,7 @@ impl Env {
         }
         self.instance = Some(instance.clone());
         self.start_z = self.object_pos(instance.task.object)[2];
-        self.stages = Stages::default();
+        self.milestones = Milestones::default();
         self.update_stages();
     }
 
@@ -273,7 +273,7 @@ impl Env {
                 let a = self.ids.object_qpos[k];
                 qpos[a..a + 7].try_into().expect("free joint has 7 coordinates")
             }),
-            stages: self.stages,
+            milestones: self.milestones,
         }
     }
 
@@ -378,7 +378,7 @@ impl Env {
         let p = Vector3::from(self.object_pos(task.object));
         let (ee, r) = self.eef_pose();
         let local = r.transpose() * (p - ee);
-        self.stages.update(&StageInputs {
+        self.milestones.update(&MilestoneInputs {
             object_in_gripper: [local[0], local[1], local[2]],
             object_z: p[2],
             start_z: self.start_z,

@@ -3,7 +3,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// Which robot arm (with its own gripper) stands in the scene.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Robot {
     /// Rethink Sawyer with the Rethink two-finger gripper: the filmed demonstrator.
@@ -27,7 +27,7 @@ pub struct RobotSpec {
     /// World position of the arm's base. The bins sit about 0.6 m in front of it (robosuite's bins
     /// layout); the shorter-reaching Panda stands 0.1 m closer so the whole source bin is in reach.
     pub base_pos: [f64; 3],
-    /// Initial arm joint angles (design.md, from the paper's code).
+    /// Initial arm joint angles (the authors' robosuite fork).
     pub init_qpos: [f64; 7],
     /// Finger actuator targets when fully open.
     pub open_ctrl: [f64; 2],

@@ -2,9 +2,12 @@
 use super::action::Action;
 use super::env::{Env, Observation};
 use super::expert::Expert;
-use super::stages::Stages;
+use super::milestones::Milestones;
 use super::task::Instance;
+use crate::seeds::derive_seed;
 use anyhow::Result;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 /// Steps the expert keeps holding still after releasing, so the object comes to rest.
 const SETTLE_STEPS: usize = 3;
@@ -19,11 +22,26 @@ pub struct Step {
 /// An expert episode.
 pub struct Episode {
     pub steps: Vec<Step>,
-    pub stages: Stages,
+    pub milestones: Milestones,
 }
 
 /// Runs the expert on `instance` for at most `max_actions` actions, recording frames if `render`.
 pub fn run_expert(env: &mut Env, instance: &Instance, max_actions: usize, render: bool) -> Result<Episode> {
+    run_expert_perturbed(env, instance, max_actions, render, 0.0)
+}
+
+/// Like [`run_expert`], but each action is executed with Gaussian noise of standard deviation `noise` (metres)
+/// added to its position target, while the expert's own action is what is recorded: the states a learner's errors
+/// lead to, labelled with the expert's correction (DART, Laskey et al., CoRL 2017). The noise is drawn from the
+/// instance's seed, so an episode is reproducible.
+pub fn run_expert_perturbed(
+    env: &mut Env,
+    instance: &Instance,
+    max_actions: usize,
+    render: bool,
+    noise: f64,
+) -> Result<Episode> {
+    let mut rng = ChaCha8Rng::seed_from_u64(derive_seed("expert-noise", &[instance.seed]));
     env.reset(instance);
     let mut expert = Expert::new(env);
     let mut steps = Vec::with_capacity(max_actions + 1);
@@ -37,11 +55,26 @@ pub fn run_expert(env: &mut Env, instance: &Instance, max_actions: usize, render
             break;
         }
         let action = expert.act(env);
-        env.step(&action);
+        if noise > 0.0 {
+            let mut executed = action;
+            for d in 0..3 {
+                executed.0[d] += noise * gaussian(&mut rng);
+            }
+            env.step(&executed);
+        } else {
+            env.step(&action);
+        }
         if expert.done() {
             settle += 1;
         }
         steps.push(Step { frame, observation, action: Some(action) });
     }
-    Ok(Episode { steps, stages: env.stages() })
+    Ok(Episode { steps, milestones: env.milestones() })
+}
+
+/// A standard normal draw (Box-Muller).
+fn gaussian<R: Rng>(rng: &mut R) -> f64 {
+    let u: f64 = rng.random_range(f64::EPSILON..1.0);
+    let v: f64 = rng.random();
+    (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
 }

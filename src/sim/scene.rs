@@ -17,7 +17,7 @@ pub const ROBOT_PREFIX: &str = "robot0_";
 pub const GRIPPER_PREFIX: &str = "gripper0_";
 
 /// Which geometry the camera sees.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum Visuals {
     /// The robots' visual meshes (what the paper filmed).

@@ -71,9 +71,7 @@ impl Adam {
             named.push((format!("m.{name}"), m));
             named.push((format!("v.{name}"), v));
         }
-        let tmp = path.with_extension("partial.safetensors");
-        Tensor::write_safetensors(&named, &tmp).with_context(|| format!("writing {}", tmp.display()))?;
-        std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+        crate::fsio::write_with(path, |tmp| Ok(Tensor::write_safetensors(&named, tmp)?))
     }
 
     /// Restores the state written by [`Adam::save`]; errors name the file and a parameter that does not fit.

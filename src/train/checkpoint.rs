@@ -6,9 +6,7 @@ use tch::{Tensor, nn};
 
 /// Saves all variables of `vs` to `path` atomically.
 pub fn save(vs: &nn::VarStore, path: &Path) -> Result<()> {
-    let tmp = path.with_extension("partial.safetensors");
-    vs.save(&tmp).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+    crate::fsio::write_with(path, |tmp| Ok(vs.save(tmp)?))
 }
 
 /// Loads `path` into `vs`; errors name the file and the first parameter that does not fit.

@@ -1,8 +1,10 @@
 //! Training settings, with the paper's values as defaults.
-use crate::model::config::{Architecture, ModelConfig};
+use crate::data::augment::Augmentation;
+use crate::model::config::ModelConfig;
+use crate::model::policy::Losses;
 use anyhow::{Result, bail};
 use serde::{Deserialize, Serialize};
-use tch::Device;
+use tch::{Device, Tensor};
 
 /// Weights of the three losses; 0 switches a loss off (the loss ablations).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -11,6 +13,13 @@ pub struct LossWeights {
     pub bc: f64,
     pub inverse: f64,
     pub point: f64,
+}
+
+impl LossWeights {
+    /// The weighted sum of `losses` that is optimised.
+    pub fn total(&self, losses: &Losses) -> Tensor {
+        &losses.bc * self.bc + &losses.inverse * self.inverse + &losses.point * self.point
+    }
 }
 
 impl Default for LossWeights {
@@ -65,8 +74,10 @@ pub struct TrainConfig {
     pub checkpoint_interval: u64,
     /// Fraction of each task's trajectories held out for validation.
     pub val_fraction: f64,
-    /// Image augmentation of training samples.
+    /// Image augmentation of training samples (the augmentation ablation turns it off).
     pub augment: bool,
+    /// Its ranges.
+    pub augmentation: Augmentation,
     pub loss: LossWeights,
     /// Batches prepared ahead of the training step on a background thread; 0 prepares each when it is needed
     /// (faster where the cores are few: the two do not compete).
@@ -89,6 +100,7 @@ impl Default for TrainConfig {
             checkpoint_interval: 2000,
             val_fraction: 0.1,
             augment: true,
+            augmentation: Augmentation::default(),
             loss: LossWeights::default(),
             prefetch: 4,
         }
@@ -122,6 +134,7 @@ impl TrainConfig {
         if w.bc + w.inverse + w.point == 0.0 {
             bail!("train.loss: every loss weight is 0");
         }
+        self.augmentation.validate()?;
         self.device()?;
         Ok(())
     }
@@ -141,29 +154,18 @@ impl TrainConfig {
 
     /// The torch device named by `device`.
     pub fn device(&self) -> Result<Device> {
-        parse_device(&self.device)
+        crate::device::parse_device(&self.device)
     }
-}
-
-/// Parses `auto`, `cpu`, `cuda` or `cuda:N`.
-pub fn parse_device(name: &str) -> Result<Device> {
-    Ok(match name {
-        "auto" => Device::cuda_if_available(),
-        "cpu" => Device::Cpu,
-        "cuda" => Device::Cuda(0),
-        _ => match name.strip_prefix("cuda:").and_then(|n| n.parse().ok()) {
-            Some(n) => Device::Cuda(n),
-            None => bail!("device = {name:?}: expected auto, cpu, cuda or cuda:N"),
-        },
-    })
 }
 
 /// Checks that every weighted loss has a head in the architecture (the Contextual-LSTM has only the action head).
 pub fn check_heads(model: &ModelConfig, train: &TrainConfig) -> Result<()> {
-    if model.architecture == Architecture::ContextualLstm && (train.loss.inverse != 0.0 || train.loss.point != 0.0) {
+    let heads = model.architecture.registration().is_none_or(|r| r.auxiliary_heads);
+    if !heads && (train.loss.inverse != 0.0 || train.loss.point != 0.0) {
         bail!(
-            "model.architecture = \"contextual_lstm\" has no inverse-dynamics or point head: \
-             set train.loss.inverse and train.loss.point to 0"
+            "model.architecture = {:?} has no inverse-dynamics or point head: \
+             set train.loss.inverse and train.loss.point to 0",
+            model.architecture.0
         );
     }
     Ok(())

@@ -1,7 +1,6 @@
 //! The loss curve: one record per (step, split), kept as JSON lines beside the checkpoints.
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::Path;
 
 /// Losses at one step of one split (mean over the batches it covers).
@@ -38,11 +37,10 @@ pub fn read(path: &Path, max_step: u64) -> Result<Vec<CurvePoint>> {
 
 /// Rewrites the curve at `path` atomically.
 pub fn write(path: &Path, points: &[CurvePoint]) -> Result<()> {
-    let tmp = path.with_extension("jsonl.partial");
-    let mut f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let mut text = String::new();
     for p in points {
-        writeln!(f, "{}", serde_json::to_string(p)?)?;
+        text += &serde_json::to_string(p)?;
+        text.push('\n');
     }
-    f.sync_all()?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+    crate::fsio::write_atomic(path, text)
 }

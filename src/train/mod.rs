@@ -8,10 +8,7 @@ pub mod curve;
 use crate::data::loader::{Batch, DeviceBatch, PrefetchSpec, Prefetcher, build_batch};
 use crate::data::pairs::{PairDataset, Split};
 use crate::model::config::ModelConfig;
-use crate::model::heads::point_nll;
-use crate::model::mixture::mixture_nll;
-use crate::model::policy::Policy;
-use crate::model::transformer::mixture_spec;
+use crate::model::policy::{Losses, Policy};
 use crate::seeds::derive_seed;
 use crate::sim::env::WorldConfig;
 use adam::Adam;
@@ -29,39 +26,6 @@ pub const FINAL_WEIGHTS: &str = "model.safetensors";
 pub const FINAL_INFO: &str = "model.json";
 pub const CURVE_FILE: &str = "curve.jsonl";
 pub const CHECKPOINT_DIR: &str = "checkpoints";
-
-/// The three losses of one batch.
-pub struct Losses {
-    pub bc: Tensor,
-    pub inverse: Tensor,
-    pub point: Tensor,
-}
-
-impl Losses {
-    /// The weighted sum that is optimised.
-    pub fn total(&self, w: &LossWeights) -> Tensor {
-        &self.bc * w.bc + &self.inverse * w.inverse + &self.point * w.point
-    }
-}
-
-/// Computes all three losses of `policy` on a batch.
-/// Losses of heads the architecture lacks are zero.
-pub fn losses(policy: &Policy, batch: &DeviceBatch, train: bool) -> Losses {
-    let out = policy.forward_t(&batch.context, &batch.agent, train);
-    let spec = mixture_spec(policy.config());
-    let zero = || Tensor::zeros([], (Kind::Float, batch.actions.device()));
-    let steps = batch.actions.size()[1];
-    let narrow = |p: &crate::model::mixture::MixtureParams| crate::model::mixture::MixtureParams {
-        means: p.means.narrow(1, 0, steps),
-        log_scales: p.log_scales.narrow(1, 0, steps),
-        logits: p.logits.narrow(1, 0, steps),
-    };
-    Losses {
-        bc: mixture_nll(&narrow(&out.actions), &batch.actions, spec),
-        inverse: out.inverse.as_ref().map_or_else(zero, |p| mixture_nll(p, &batch.actions, spec)),
-        point: out.point.as_ref().map_or_else(zero, |p| point_nll(p, &batch.points)),
-    }
-}
 
 /// What a finished training run reports (also written to `model.json`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -150,11 +114,11 @@ fn mean_losses(policy: &Policy, batches: &[DeviceBatch], w: &LossWeights, step: 
     let (mut bc, mut inv, mut pnt, mut total) = (0.0, 0.0, 0.0, 0.0);
     tch::no_grad(|| {
         for b in batches {
-            let l = losses(policy, b, false);
+            let l = policy.losses(b, false);
             bc += l.bc.double_value(&[]) / n;
             inv += l.inverse.double_value(&[]) / n;
             pnt += l.point.double_value(&[]) / n;
-            total += l.total(w).double_value(&[]) / n;
+            total += w.total(&l).double_value(&[]) / n;
         }
     });
     CurvePoint { step, split: "val".into(), bc, inverse: inv, point: pnt, total }
@@ -197,7 +161,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let (h, w) = (data.height, data.width);
     let val: Vec<DeviceBatch> = (0..config.val_batches)
         .map(|k| {
-            build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, false)
+            build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, None)
                 .map(|b| b.to_device(model, h, w, device))
         })
         .collect::<Result<_>>()?;
@@ -212,11 +176,11 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         batch_size: config.batch_size,
         seed: config.seed,
         start,
-        augment: config.augment,
+        augment: config.augment.then(|| config.augmentation.clone()),
         depth: config.prefetch,
     };
     let mut loader = Prefetcher::start(data.clone(), spec);
-    let bar = crate::data::collect::progress_bar(config.steps, run.progress, "train");
+    let bar = crate::progress::progress_bar(config.steps, run.progress, "train");
     bar.set_position(start);
     let mut window = TrainWindow::default();
     for step in start + 1..=config.steps {
@@ -224,8 +188,8 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         tch::manual_seed(derive_seed("dropout", &[config.seed, step]) as i64);
         opt.set_lr(config.lr_at(step));
         let batch: Batch = loader.next_batch()?;
-        let l = losses(&policy, &batch.to_device(model, h, w, device), true);
-        let total = l.total(&config.loss);
+        let l = policy.losses(&batch.to_device(model, h, w, device), true);
+        let total = config.loss.total(&l);
         opt.backward_step(&total);
         window.add(&l, &total);
         if step % config.val_interval == 0 || step == config.steps {
@@ -285,24 +249,5 @@ impl TrainWindow {
         let [bc, inverse, point, total] = self.sums.map(|s| s / n);
         *self = TrainWindow::default();
         CurvePoint { step, split: "train".into(), bc, inverse, point, total }
-    }
-}
-
-/// A stand-alone training configuration file: `[model]` and `[train]` tables.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct TrainFile {
-    pub model: ModelConfig,
-    pub train: TrainConfig,
-}
-
-impl TrainFile {
-    /// Reads and validates a TOML file; errors name the file, line and key.
-    pub fn load(path: &Path) -> Result<TrainFile> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let file: TrainFile = toml::from_str(&text).with_context(|| format!("in {}", path.display()))?;
-        file.model.validate().with_context(|| format!("in {}", path.display()))?;
-        file.train.validate().with_context(|| format!("in {}", path.display()))?;
-        Ok(file)
     }
 }

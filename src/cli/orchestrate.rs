@@ -1,35 +1,48 @@
-//! `run` and `plan`: an experiment file against the results store.
-use crate::config::Experiment;
-use crate::pipeline::graph::{Plan, short};
-use crate::pipeline::scheduler::{RunOptions, RunReport, display_name, run};
-use crate::pipeline::store::{StageState, Store};
+//! `run`, `run-stage` and `plan`: an experiment file against the results store.
+use super::args::{PlanArgs, RunArgs, RunStageArgs};
+use super::default_workers;
 use anyhow::{Result, bail};
-use std::path::Path;
-
-/// Loads an experiment and expands it.
-pub fn load_plan(file: &Path, profile: Option<&str>) -> Result<(Experiment, Plan)> {
-    let experiment = Experiment::load(file, profile)?;
-    let plan = Plan::build(&experiment);
-    Ok((experiment, plan))
-}
+use oneshot_lab::pipeline::graph::short;
+use oneshot_lab::pipeline::load_plan;
+use oneshot_lab::pipeline::scheduler::{RunOptions, display_name, run as run_plan};
+use oneshot_lab::pipeline::slurm::{SlurmOptions, run_stage as run_one_stage};
+use oneshot_lab::pipeline::store::{StageState, Store};
 
 /// Runs what is missing, records the experiment's cells and (unless `--only` or a dry run) writes its report.
-pub fn run_experiment(file: &Path, profile: Option<&str>, root: &Path, opts: &RunOptions) -> Result<RunReport> {
-    let (experiment, plan) = load_plan(file, profile)?;
-    let report = run(&plan, root, opts)?;
-    let labels = crate::pipeline::scheduler::labels(&plan);
+pub fn run(a: RunArgs) -> Result<()> {
+    let profile = a.store.profile.as_deref();
+    let (experiment, plan) = load_plan(&a.file, profile)?;
+    let slurm = a.slurm.then(|| SlurmOptions {
+        file: a.file.clone(),
+        profile: a.store.profile.clone(),
+        args: a.slurm_args.clone(),
+        gpu_args: a.slurm_gpu_args.clone(),
+    });
+    let opts = RunOptions {
+        slurm,
+        jobs: a.jobs,
+        only: a.only.clone(),
+        force: a.force.clone(),
+        dry_run: a.dry_run,
+        gpus: a.gpus.iter().map(|g| format!("cuda:{g}")).collect(),
+        workers: a.workers.unwrap_or_else(default_workers),
+        progress: true,
+    };
+    let root = &a.store.store;
+    let report = run_plan(&plan, root, &opts)?;
+    let labels = plan.labels();
     if opts.dry_run {
         println!("{} stages cached, {} to run:", report.cached.len(), report.would_run.len());
         for k in &report.would_run {
             let s = &plan.stages[k];
-            println!("  {:<8} {}", s.kind.name(), display_name(s, &labels));
+            println!("  {:<8} {}", s.kind().name(), display_name(s, &labels));
         }
-        return Ok(report);
+        return Ok(());
     }
     let mut store = Store::open(root)?;
     store.record_experiment(
         &experiment.name,
-        &file.display().to_string(),
+        &a.file.display().to_string(),
         &experiment.description,
         profile,
         &plan.cells,
@@ -46,14 +59,20 @@ pub fn run_experiment(file: &Path, profile: Option<&str>, root: &Path, opts: &Ru
         println!("  failed {}: {e}", display_name(&plan.stages[k], &labels));
     }
     if opts.only.is_none() {
-        let out = crate::report::report_dir(root, &experiment.name);
-        crate::report::write_report(&store, &experiment.name, &out)?;
+        let out = oneshot_lab::report::report_dir(root, &experiment.name);
+        oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
         println!("report: {}", out.join("index.md").display());
     }
     if !report.failed.is_empty() || !report.skipped.is_empty() {
         bail!("{} stages failed and {} were skipped; run again to retry", report.failed.len(), report.skipped.len());
     }
-    Ok(report)
+    Ok(())
+}
+
+/// Runs one stage of an experiment, as a Slurm job does.
+pub fn run_stage(a: RunStageArgs) -> Result<()> {
+    let (_, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
+    run_one_stage(&plan, &a.key, &a.store.store, a.workers.unwrap_or_else(default_workers))
 }
 
 fn state_word(s: &StageState) -> &'static str {
@@ -66,9 +85,9 @@ fn state_word(s: &StageState) -> &'static str {
 }
 
 /// Prints the grid as cells x stages with their state and an estimate of the time left.
-pub fn print_plan(file: &Path, profile: Option<&str>, root: &Path) -> Result<()> {
-    let (experiment, plan) = load_plan(file, profile)?;
-    let mut store = Store::open(root)?;
+pub fn plan(a: PlanArgs) -> Result<()> {
+    let (experiment, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
+    let mut store = Store::open(&a.store.store)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     println!("{}: {} cells, {} distinct stages", experiment.name, plan.cells.len(), plan.stages.len());
     println!("{:<28} {:<20} {:<20} {:<20} {:<20}", "cell", "collect sawyer", "collect panda", "train", "eval");
@@ -79,24 +98,24 @@ pub fn print_plan(file: &Path, profile: Option<&str>, root: &Path) -> Result<()>
         })
     };
     for c in &plan.cells {
+        let evals = std::iter::once(&c.eval).chain(c.checkpoints.iter().map(|(_, k)| k));
+        let eval_states: Vec<String> = evals.map(|k| cell_state(&Some(k.clone()))).collect::<Result<_>>()?;
         println!(
-            "{:<28} {:<20} {:<20} {:<20} {:<20}",
+            "{:<28} {:<20} {:<20} {:<20} {}",
             c.name,
             cell_state(&c.collect_demo)?,
             cell_state(&c.collect_agent)?,
             cell_state(&c.train)?,
-            cell_state(&Some(c.eval.clone()))?
+            eval_states.join(", ")
         );
     }
-    let mut estimate = 0.0;
-    let mut unknown = 0;
-    let mut todo = 0;
+    let (mut estimate, mut unknown, mut todo) = (0.0, 0, 0);
     for s in plan.stages.values() {
         if store.state(&s.key)? == StageState::Done {
             continue;
         }
         todo += 1;
-        match store.mean_seconds(s.kind.name())? {
+        match store.mean_seconds(s.kind().name())? {
             Some(t) => estimate += t,
             None => unknown += 1,
         }

@@ -1,31 +1,53 @@
 //! Benchmarks that print figures: training step rate and memory beside the trunk alone, evaluation rollouts per
 //! second, and the orchestrator's overhead on a large cached grid.
-use crate::data::loader::DeviceBatch;
-use crate::eval::{EvalConfig, EvalOutput, EvalPolicy, evaluate};
-use crate::model::config::ModelConfig;
-use crate::model::resnet::ResNet18;
-use crate::pipeline::graph::Plan;
-use crate::pipeline::store::Store;
-use crate::sim::camera::ImageSize;
-use crate::sim::env::WorldConfig;
-use crate::train::config::{LossWeights, parse_device};
-use crate::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained, losses};
+use super::args::{BenchEvalArgs, BenchPlanArgs, BenchTrainArgs};
+use super::default_workers;
 use anyhow::{Context, Result, bail};
+use oneshot_lab::data::loader::DeviceBatch;
+use oneshot_lab::device::parse_device;
+use oneshot_lab::eval::rollout::rollouts;
+use oneshot_lab::eval::{EvalConfig, EvalOutput, Policy};
+use oneshot_lab::model::config::ModelConfig;
+use oneshot_lab::model::resnet::ResNet18;
+use oneshot_lab::pipeline::load_plan;
+use oneshot_lab::pipeline::stages::StageOutputs;
+use oneshot_lab::pipeline::store::{Claim, Store};
+use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::env::WorldConfig;
+use oneshot_lab::train::config::LossWeights;
+use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained};
 use std::collections::HashSet;
 use std::time::Instant;
 use tch::nn::{ModuleT, OptimizerConfig};
 use tch::{Device, Kind, Tensor, nn};
 
+/// `bench-train`: a configuration's training step rate beside its trunk alone.
+pub fn train(a: BenchTrainArgs) -> Result<()> {
+    let mut c = bench_config(&a.config)?;
+    c.batch = a.batch.unwrap_or(c.batch);
+    bench_train(&c, a.steps.max(1), &a.device)
+}
+
+/// `bench-eval`: rollouts per second of a small network and of the random policy.
+pub fn eval(a: BenchEvalArgs) -> Result<()> {
+    bench_eval(a.episodes.max(1), a.horizon.max(1), a.workers.unwrap_or_else(default_workers))
+}
+
+/// `bench-plan`: the orchestrator's overhead on a large cached grid.
+pub fn plan(a: BenchPlanArgs) -> Result<()> {
+    bench_plan(a.cells.max(1))
+}
+
 /// Model, frame size and batch of a benchmark configuration.
-pub struct BenchConfig {
-    pub name: &'static str,
-    pub model: ModelConfig,
-    pub image: ImageSize,
-    pub batch: usize,
+struct BenchConfig {
+    name: &'static str,
+    model: ModelConfig,
+    image: ImageSize,
+    batch: usize,
 }
 
 /// `paper` (240x320, batch 30, the paper's network) or `small` (the smoke experiment's network at 64x80).
-pub fn bench_config(name: &str) -> Result<BenchConfig> {
+fn bench_config(name: &str) -> Result<BenchConfig> {
     Ok(match name {
         "paper" => BenchConfig {
             name: "paper",
@@ -68,8 +90,20 @@ fn sync(device: Device) {
     }
 }
 
+/// Seconds per call of `step` over `steps` calls, after one warm-up call, the device synchronised around them.
+fn seconds_per_step(steps: usize, device: Device, mut step: impl FnMut()) -> f64 {
+    step();
+    sync(device);
+    let start = Instant::now();
+    for _ in 0..steps {
+        step();
+    }
+    sync(device);
+    start.elapsed().as_secs_f64() / steps as f64
+}
+
 /// Times `steps` full training steps of the policy, then the trunk's forward + backward on the same frames.
-pub fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
+fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
     let device = parse_device(device)?;
     tch::manual_seed(0);
     let batch = synthetic_batch(c, device);
@@ -82,15 +116,7 @@ pub fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
     let (vs, policy) = build_policy(&c.model, device)?;
     let mut opt = nn::Adam::default().build(&vs, 5e-4)?;
     let weights = LossWeights::default();
-    let mut step = || opt.backward_step(&losses(&policy, &batch, true).total(&weights));
-    step();
-    sync(device);
-    let start = Instant::now();
-    for _ in 0..steps {
-        step();
-    }
-    sync(device);
-    let model_s = start.elapsed().as_secs_f64() / steps as f64;
+    let model_s = seconds_per_step(steps, device, || opt.backward_step(&weights.total(&policy.losses(&batch, true))));
 
     let trunk_vs = nn::VarStore::new(device);
     let trunk = ResNet18::new(&trunk_vs.root(), c.model.backbone_width, c.model.backbone_stages);
@@ -105,14 +131,7 @@ pub fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
             }
         }
     };
-    trunk_step();
-    sync(device);
-    let start = Instant::now();
-    for _ in 0..steps {
-        trunk_step();
-    }
-    sync(device);
-    let trunk_s = start.elapsed().as_secs_f64() / steps as f64;
+    let trunk_s = seconds_per_step(steps, device, trunk_step);
 
     println!("  full training step     : {:>8.3} s/step  {:>7.2} steps/s", model_s, 1.0 / model_s);
     println!("  trunk forward+backward : {:>8.3} s/step  {:>7.2} steps/s", trunk_s, 1.0 / trunk_s);
@@ -129,7 +148,7 @@ pub fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
 
 /// Times evaluation of the `small` network (fresh weights: its speed does not depend on them), and of the random
 /// policy through the same path, with `workers` simulation threads.
-pub fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
+fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
     let c = bench_config("small")?;
     let dir = std::env::temp_dir().join(format!("oneshot-bench-eval-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -147,9 +166,10 @@ pub fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()>
         "evaluation benchmark: {episodes} episodes x {horizon} steps, {}x{} frames, {workers} simulation threads, CPU",
         c.image.height, c.image.width
     );
-    for (name, policy) in [("small network", EvalPolicy::Network(&trained)), ("random policy", EvalPolicy::Random)] {
+    let specs = config.episode_specs(&HashSet::new());
+    for (name, policy) in [("small network", Policy::Network(&trained)), ("random policy", Policy::Random)] {
         let start = Instant::now();
-        let results = evaluate(&policy, &world, &config, &HashSet::new(), workers, &EvalOutput { strips_dir: None })?;
+        let results = rollouts(&policy, &world, &config, &specs, workers, &EvalOutput { strips_dir: None })?;
         let s = start.elapsed().as_secs_f64();
         let steps: usize = results.iter().map(|r| r.steps).sum();
         println!(
@@ -166,7 +186,7 @@ pub fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()>
 
 /// Builds a grid of at least `cells` cells, marks every stage cached in a scratch store, then times the `plan`
 /// and `run` commands of this binary on it.
-pub fn bench_plan(cells: usize) -> Result<()> {
+fn bench_plan(cells: usize) -> Result<()> {
     let dir = std::env::temp_dir().join(format!("oneshot-bench-plan-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let variants = 10usize;
@@ -182,18 +202,15 @@ pub fn bench_plan(cells: usize) -> Result<()> {
     let file = dir.join("bench_plan.toml");
     std::fs::write(&file, text)?;
     let store_dir = dir.join("runs");
-    let experiment = crate::config::Experiment::load(&file, None)?;
-    let plan = Plan::build(&experiment);
+    let (_, plan) = load_plan(&file, None)?;
     let mut store = Store::open(&store_dir)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
-    // Benchmark set-up only: every stage is marked finished with an empty artifact folder.
+    // Benchmark set-up only: every stage is recorded finished, with no results, in an empty artifact folder.
     for (i, k) in plan.order.iter().enumerate() {
         let artifact = store_dir.join("artifacts").join(i.to_string());
         std::fs::create_dir_all(&artifact)?;
-        store.conn().execute(
-            "UPDATE stages SET status = 'done', artifact = ?2, seconds = 1.0 WHERE key = ?1",
-            rusqlite::params![k, artifact.to_string_lossy()],
-        )?;
+        let Claim::Acquired(attempt) = store.claim(k, false)? else { bail!("a fresh store has stage {k} claimed") };
+        store.complete(k, attempt, &artifact, &StageOutputs::default())?;
     }
     println!("orchestrator benchmark: {} cells, {} stages, all cached", plan.cells.len(), plan.stages.len());
     let exe = std::env::current_exe()?;

@@ -1,9 +1,9 @@
-//! `expert-check`: the scripted expert's staged success over instances of every task.
-use crate::sim::env::{Env, WorldConfig};
-use crate::sim::robot::Robot;
-use crate::sim::rollout::run_expert;
-use crate::sim::stages::Stages;
-use crate::sim::task::{Instance, NUM_TASKS, Task};
+//! The scripted expert's staged success over instances of every task (`expert-check`).
+use super::env::{Env, WorldConfig};
+use super::milestones::Milestones;
+use super::robot::Robot;
+use super::rollout::run_expert;
+use super::task::{Instance, NUM_TASKS, Task};
 use anyhow::{Result, bail};
 
 /// Success counts per task, in task order.
@@ -45,7 +45,7 @@ pub fn expert_check(
         let mut c = [0usize; 3];
         for i in 0..per_task {
             let ep = run_expert(&mut env, &Instance::sample(task, check_seed(seed, t, i)), max_actions, false)?;
-            let Stages { reached, picked, placed } = ep.stages;
+            let Milestones { reached, picked, placed } = ep.milestones;
             for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
                 c[k] += hit as usize;
             }
@@ -53,16 +53,4 @@ pub fn expert_check(
         counts.push(c);
     }
     Ok(ExpertReport { robot, per_task: counts, instances_per_task: per_task })
-}
-
-/// Prints the report as a table.
-pub fn print_report(r: &ExpertReport) {
-    let n = r.instances_per_task;
-    println!("expert on {} ({} instances per task)", r.robot, n);
-    println!("{:>4} {:>8} {:>8} {:>8}", "task", "reached", "picked", "placed");
-    for (t, c) in r.per_task.iter().enumerate() {
-        println!("{t:>4} {:>8} {:>8} {:>8}", format!("{}/{n}", c[0]), format!("{}/{n}", c[1]), format!("{}/{n}", c[2]));
-    }
-    let o = r.overall();
-    println!("all  {:>7.1}% {:>7.1}% {:>7.1}%", o[0] * 100.0, o[1] * 100.0, o[2] * 100.0);
 }

@@ -1,13 +1,22 @@
 //! The Contextual-LSTM baseline of the paper: per-frame ResNet-18 + spatial softmax + MLP embeddings, an encoder
 //! LSTM over the context, and a decoder LSTM over the agent's frames that attends over the encoded context and its
 //! own past states; the same action head. Trained with behaviour cloning only.
-use super::config::ModelConfig;
-use super::heads::{EmbeddingMlp, spatial_softmax};
-use super::mixture::MixtureHead;
-use super::resnet::ResNet18;
-use super::transformer::mixture_spec;
+use super::Registration;
+use crate::model::config::ModelConfig;
+use crate::model::heads::{EmbeddingMlp, spatial_softmax};
+use crate::model::mixture::{MixtureHead, MixtureSpec};
+use crate::model::policy::{PolicyNet, PolicyOutput};
+use crate::model::resnet::ResNet18;
 use tch::nn::{self, Module, ModuleT, RNN};
 use tch::{Kind, Tensor};
+
+/// The paper's Contextual-LSTM baseline.
+pub const CONTEXTUAL_LSTM: Registration = Registration {
+    name: "contextual_lstm",
+    description: "the Contextual-LSTM baseline: encoder and decoder LSTMs over frame embeddings, BC only",
+    auxiliary_heads: false,
+    build: |vs, config| Box::new(ContextualLstm::new(vs, config)),
+};
 
 /// The baseline network.
 #[derive(Debug)]
@@ -33,13 +42,8 @@ impl ContextualLstm {
             encoder: nn::lstm(vs / "encoder", latent, hidden, rnn),
             decoder: nn::lstm(vs / "decoder", latent, hidden, rnn),
             policy: nn::linear(vs / "policy", 2 * hidden, config.policy_hidden, Default::default()),
-            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, mixture_spec(config)),
+            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
         }
-    }
-
-    /// The ResNet-18 trunk.
-    pub fn trunk_mut(&mut self) -> &mut ResNet18 {
-        &mut self.trunk
     }
 
     fn embed_frames(&self, images: &Tensor, train: bool) -> Tensor {
@@ -47,10 +51,14 @@ impl ContextualLstm {
         let f = self.trunk.forward_t(&images.view([s[0] * s[1], s[2], s[3], s[4]]), train);
         self.embed.forward_t(&spatial_softmax(&f), train).view([s[0], s[1], -1])
     }
+}
 
-    /// Action distributions `[B, Ta, 8, mixtures]` for `context` `[B, Tc, 3, H, W]` and `agent` `[B, Ta, 3, H, W]`;
-    /// agent step t depends on the context and agent frames 0..=t only.
-    pub fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> super::mixture::MixtureParams {
+impl PolicyNet for ContextualLstm {
+    fn set_channels_last(&mut self, on: bool) {
+        self.trunk.set_channels_last(on)
+    }
+
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
         let (tc, ta) = (context.size()[1], agent.size()[1]);
         let (encoded, state) = self.encoder.seq(&self.embed_frames(context, train));
         let (decoded, _) = self.decoder.seq_init(&self.embed_frames(agent, train), &state);
@@ -65,6 +73,6 @@ impl ContextualLstm {
         let attended =
             scores.masked_fill(&visible.logical_not(), f64::NEG_INFINITY).softmax(-1, Kind::Float).matmul(&memory);
         let hidden = self.policy.forward(&Tensor::cat(&[decoded, attended], -1)).relu();
-        self.action_head.forward(&hidden)
+        PolicyOutput { actions: self.action_head.forward(&hidden), inverse: None, point: None }
     }
 }

@@ -14,10 +14,11 @@
 //! - `loss_curves(train_key, step, split, bc, inverse, point, total)`.
 //!
 //! Timestamps are Unix seconds.
+pub mod read;
+
 use super::graph::{PlannedCell, Stage};
-use crate::eval::EpisodeResult;
-use crate::train::curve::CurvePoint;
-use anyhow::{Context, Result};
+use super::stages::StageOutputs;
+use anyhow::{Context, Result, bail};
 use rusqlite::{Connection, OptionalExtension, TransactionBehavior, params};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -96,30 +97,32 @@ pub enum Claim {
 /// An open results store.
 pub struct Store {
     conn: Connection,
-    root: PathBuf,
 }
 
 impl Store {
     /// Opens (creating if needed) the store in folder `root`.
     pub fn open(root: &Path) -> Result<Store> {
         std::fs::create_dir_all(root).with_context(|| format!("creating store folder {}", root.display()))?;
+        Store::open_database(root)
+    }
+
+    /// Opens the store in folder `root`, which must already hold one (commands that only read).
+    pub fn open_existing(root: &Path) -> Result<Store> {
+        let path = root.join(DATABASE);
+        if !path.is_file() {
+            bail!("no results store at {} (run an experiment there first, or pass --store)", path.display());
+        }
+        Store::open_database(root)
+    }
+
+    fn open_database(root: &Path) -> Result<Store> {
         let path = root.join(DATABASE);
         let conn = Connection::open(&path).with_context(|| format!("opening {}", path.display()))?;
         conn.busy_timeout(Duration::from_secs(60))?;
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "NORMAL")?;
         conn.execute_batch(SCHEMA).with_context(|| format!("creating the schema in {}", path.display()))?;
-        Ok(Store { conn, root: root.to_path_buf() })
-    }
-
-    /// The store folder.
-    pub fn root(&self) -> &Path {
-        &self.root
-    }
-
-    /// The connection, for queries.
-    pub fn conn(&self) -> &Connection {
-        &self.conn
+        Ok(Store { conn })
     }
 
     /// Records the stages (inputs and upstream) of a plan, keeping what is already known.
@@ -130,8 +133,8 @@ impl Store {
                 "INSERT OR IGNORE INTO stages (key, kind, version, inputs, upstream, created_at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
                 params![
                     s.key,
-                    s.kind.name(),
-                    s.kind.version(),
+                    s.kind().name(),
+                    s.kind().version(),
                     serde_json::to_string(&s.inputs)?,
                     serde_json::to_string(&s.upstream)?,
                     now()
@@ -259,7 +262,7 @@ impl Store {
     }
 
     /// Marks a claimed stage done with its artifact folder and results, in one transaction.
-    pub fn complete(&mut self, key: &str, attempt: i64, artifact: &Path, results: &StageResults) -> Result<()> {
+    pub fn complete(&mut self, key: &str, attempt: i64, artifact: &Path, results: &StageOutputs) -> Result<()> {
         let tx = self.conn.transaction()?;
         let started: f64 = tx.query_row("SELECT started_at FROM attempts WHERE id = ?1", [attempt], |r| r.get(0))?;
         let t = now();
@@ -286,7 +289,7 @@ impl Store {
             )?;
         }
         for (name, value) in &results.metrics {
-            tx.execute("INSERT INTO metrics VALUES (?1, ?2, ?3)", params![key, name, value])?;
+            tx.execute("INSERT INTO metrics VALUES (?1, ?2, ?3)", params![key, name.as_str(), value])?;
         }
         for p in &results.curve {
             tx.execute(
@@ -327,12 +330,4 @@ impl Store {
             .conn
             .query_row("SELECT AVG(seconds) FROM stages WHERE kind = ?1 AND status = 'done'", [kind], |r| r.get(0))?)
     }
-}
-
-/// What a finished stage adds to the store.
-#[derive(Default, serde::Serialize, serde::Deserialize)]
-pub struct StageResults {
-    pub episodes: Vec<EpisodeResult>,
-    pub metrics: Vec<(String, f64)>,
-    pub curve: Vec<CurvePoint>,
 }

@@ -1,30 +1,36 @@
 //! `bench-world`: physics and rendering throughput of the collection path (expert episodes with IK, control,
 //! frames, JPEG encoding and file writing) beside a bare MuJoCo step + render loop of the same scene, in one run.
-use crate::data::collect::{CollectConfig, collect};
-use crate::sim::env::{Env, WorldConfig};
-use crate::sim::robot::Robot;
-use crate::sim::task::{Instance, Task};
+use super::args::BenchWorldArgs;
 use anyhow::{Context, Result};
+use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
+use oneshot_lab::sim::env::{Env, WorldConfig};
+use oneshot_lab::sim::robot::Robot;
+use oneshot_lab::sim::task::{Instance, Task};
 use std::time::Instant;
 
+/// `bench-world`: runs the benchmark and prints its figures.
+pub fn bench_world(a: BenchWorldArgs) -> Result<()> {
+    let world = a.frames.world();
+    let bench = measure(a.robot, &world, a.episodes)?;
+    print_bench(a.robot, &world, &bench);
+    Ok(())
+}
+
 /// Throughput figures of one run.
-pub struct WorldBench {
-    pub collect_physics_steps_per_s: f64,
-    pub collect_frames_per_s: f64,
-    pub bare_physics_steps_per_s: f64,
-    pub bare_frames_per_s: f64,
+struct WorldBench {
+    collect_physics_steps_per_s: f64,
+    collect_frames_per_s: f64,
+    bare_physics_steps_per_s: f64,
+    bare_frames_per_s: f64,
 }
 
 /// Collects `episodes` trajectories with one worker (stored frames only are counted), then runs a bare loop
 /// with the same numbers of physics steps and frames.
-pub fn bench_world(robot: Robot, world: &WorldConfig, episodes: usize) -> Result<WorldBench> {
+fn measure(robot: Robot, world: &WorldConfig, episodes: usize) -> Result<WorldBench> {
     let tmp = std::env::temp_dir().join(format!("oneshot-bench-world-{}", std::process::id()));
-    let config = CollectConfig {
-        tasks: (0..episodes).map(|e| (e * 5) % 16).collect(),
-        per_task: 1,
-        world: world.clone(),
-        ..CollectConfig::paper(robot)
-    };
+    let tasks = (0..episodes).map(|e| (e * 5) % 16).collect();
+    let settings = CollectSettings { tasks, ..CollectSettings::default() };
+    let config = CollectConfig { per_task: 1, world: world.clone(), settings, ..CollectConfig::paper(robot) };
     let start = Instant::now();
     let manifest = collect(&config, &tmp, 1, false).context("benchmark collection")?;
     let collect_s = start.elapsed().as_secs_f64();
@@ -50,7 +56,7 @@ pub fn bench_world(robot: Robot, world: &WorldConfig, episodes: usize) -> Result
 }
 
 /// Prints the figures and the collection path's share of the bare loop's speed.
-pub fn print_bench(robot: Robot, world: &WorldConfig, b: &WorldBench) {
+fn print_bench(robot: Robot, world: &WorldConfig, b: &WorldBench) {
     println!(
         "world benchmark: {robot}, {}x{} frames, {:?} visuals, one worker",
         world.image.height, world.image.width, world.visuals

@@ -1,4 +1,4 @@
-//! Staged success (the paper's Table 1, as the authors' `test_transformers.py` computes it): reached, picked,
+//! Staged success milestones (the paper's Table 1, as the authors' `test_transformers.py` computes it): reached, picked,
 //! placed. Each stage latches once achieved.
 use serde::{Deserialize, Serialize};
 
@@ -12,14 +12,14 @@ pub const PLACED_Z: (f64, f64) = (0.80, 0.90);
 
 /// Which stages an episode has achieved so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Stages {
+pub struct Milestones {
     pub reached: bool,
     pub picked: bool,
     pub placed: bool,
 }
 
 /// The facts one step's stage update needs.
-pub struct StageInputs {
+pub struct MilestoneInputs {
     /// Object position in the gripper's frame (x across the fingers, z along them).
     pub object_in_gripper: [f64; 3],
     /// Object height now and at the episode's start.
@@ -29,9 +29,9 @@ pub struct StageInputs {
     pub in_target: bool,
 }
 
-impl Stages {
+impl Milestones {
     /// Latches every stage that `s` shows achieved.
-    pub fn update(&mut self, s: &StageInputs) {
+    pub fn update(&mut self, s: &MilestoneInputs) {
         let [x, y, _] = s.object_in_gripper;
         if x.hypot(y) < REACH_RADIUS {
             self.reached = true;
@@ -54,15 +54,15 @@ impl Stages {
 mod tests {
     use super::*;
 
-    fn inputs(g: [f64; 3], z: f64, in_target: bool) -> StageInputs {
-        StageInputs { object_in_gripper: g, object_z: z, start_z: 0.85, in_target }
+    fn inputs(g: [f64; 3], z: f64, in_target: bool) -> MilestoneInputs {
+        MilestoneInputs { object_in_gripper: g, object_z: z, start_z: 0.85, in_target }
     }
 
     #[test]
     fn stages_follow_the_definitions_and_latch() {
-        let mut s = Stages::default();
+        let mut s = Milestones::default();
         s.update(&inputs([0.03, 0.01, 0.0], 0.85, false));
-        assert_eq!(s, Stages::default(), "3.2 cm to the side is not reached");
+        assert_eq!(s, Milestones::default(), "3.2 cm to the side is not reached");
         s.update(&inputs([0.01, 0.02, 0.2], 0.85, false));
         assert!(s.reached && !s.picked, "within 3 cm across the approach axis is reached, at any height");
         s.update(&inputs([0.5, 0.5, 0.5], 0.95, false));
@@ -75,7 +75,7 @@ mod tests {
 
     #[test]
     fn lifting_without_reaching_is_not_picking() {
-        let mut s = Stages::default();
+        let mut s = Milestones::default();
         s.update(&inputs([0.2, 0.0, 0.0], 1.0, false));
         assert!(!s.picked);
     }

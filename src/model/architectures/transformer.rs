@@ -1,35 +1,38 @@
 //! The paper's policy: a ResNet-18 trunk per frame, positional encoding, causal non-local attention over
 //! [context frames, agent frames], frame and task embeddings, and the action, inverse-dynamics and point heads.
-use super::attention::{
+use super::Registration;
+use crate::model::attention::{
     AttentionLayer, AttentionSpec, ConvBlock, conv3d_config, frame_causal_mask, positional_encoding,
 };
-use super::config::{Architecture, ModelConfig};
-use super::heads::{EmbeddingMlp, PointHead, PointPrediction, spatial_softmax};
-use super::mixture::{MixtureHead, MixtureParams, MixtureSpec};
-use super::resnet::ResNet18;
-use crate::sim::action::ACTION_DIM;
+use crate::model::config::ModelConfig;
+use crate::model::heads::{EmbeddingMlp, PointHead, spatial_softmax};
+use crate::model::mixture::{MixtureHead, MixtureSpec};
+use crate::model::policy::{PolicyNet, PolicyOutput};
+use crate::model::resnet::ResNet18;
 use tch::Tensor;
 use tch::nn::{self, Module, ModuleT};
 
-/// What one forward pass predicts.
-pub struct PolicyOutput {
-    /// Action distribution at every agent frame: `[B, Ta, 8, mixtures]`.
-    pub actions: MixtureParams,
-    /// Inverse-dynamics distribution for each consecutive pair of agent frames: `[B, Ta - 1, 8, mixtures]`
-    /// (architectures without the head: none).
-    pub inverse: Option<MixtureParams>,
-    /// End-effector pixel at the end of the window (architectures without the head: none).
-    pub point: Option<PointPrediction>,
-}
+/// The paper's model.
+pub const TRANSFORMER: Registration = Registration {
+    name: "transformer",
+    description: "non-local attention over all tokens of all frames (the paper's model)",
+    auxiliary_heads: true,
+    build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::Attention)),
+};
 
-/// The action distribution's settings for `config`.
-pub fn mixture_spec(config: &ModelConfig) -> MixtureSpec {
-    MixtureSpec {
-        dims: ACTION_DIM as i64,
-        mixtures: config.mixtures,
-        bins: config.bins,
-        log_scale_min: config.log_scale_min,
-    }
+/// The paper's "no attention" ablation.
+pub const TEMPORAL_CONV: Registration = Registration {
+    name: "temporal_conv",
+    description: "the no-attention ablation: causal bottleneck blocks around a 5x5x5 spatio-temporal convolution",
+    auxiliary_heads: true,
+    build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::TemporalConv)),
+};
+
+/// How the layers between trunk and embeddings mix information across frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mixing {
+    Attention,
+    TemporalConv,
 }
 
 /// A layer that mixes information across frames.
@@ -40,11 +43,12 @@ enum Mixer {
 }
 
 impl Mixer {
-    fn new(vs: &nn::Path, arch: Architecture, spec: AttentionSpec, causal: bool) -> Mixer {
-        if arch == Architecture::TemporalConv {
-            Mixer::Conv(Box::new(ConvBlock::new(vs, spec.channels, spec.inner, causal, spec.dropout)))
-        } else {
-            Mixer::Attention(Box::new(AttentionLayer::new(vs, spec)))
+    fn new(vs: &nn::Path, mixing: Mixing, spec: AttentionSpec, causal: bool) -> Mixer {
+        match mixing {
+            Mixing::TemporalConv => {
+                Mixer::Conv(Box::new(ConvBlock::new(vs, spec.channels, spec.inner, causal, spec.dropout)))
+            }
+            Mixing::Attention => Mixer::Attention(Box::new(AttentionLayer::new(vs, spec))),
         }
     }
 
@@ -75,7 +79,7 @@ pub struct TransformerPolicy {
 
 impl TransformerPolicy {
     /// Builds the network under `vs` (call `config.validate()` first).
-    pub fn new(vs: &nn::Path, config: &ModelConfig) -> TransformerPolicy {
+    pub fn new(vs: &nn::Path, config: &ModelConfig, mixing: Mixing) -> TransformerPolicy {
         let trunk = ResNet18::new(&(vs / "backbone"), config.backbone_width, config.backbone_stages);
         let c = trunk.out_channels();
         let spec = AttentionSpec {
@@ -85,40 +89,38 @@ impl TransformerPolicy {
             temperature: config.attention_temperature.unwrap_or((c as f64).sqrt()),
             dropout: config.dropout,
         };
-        let arch = config.architecture;
         let causal =
-            (0..config.attention_layers).map(|i| Mixer::new(&(vs / "attention" / i), arch, spec, true)).collect();
+            (0..config.attention_layers).map(|i| Mixer::new(&(vs / "attention" / i), mixing, spec, true)).collect();
         let (hidden, latent) = (config.embed_hidden, config.latent);
         TransformerPolicy {
             trunk,
             dropout: config.dropout,
             causal,
-            task_attention: Mixer::new(&(vs / "task_attention"), arch, spec, false),
+            task_attention: Mixer::new(&(vs / "task_attention"), mixing, spec, false),
             task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv3d_config([0, 0, 0])),
             embed: EmbeddingMlp::new(&(vs / "embed"), 2 * c, hidden, latent, config.dropout),
             policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
             inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
-            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, mixture_spec(config)),
+            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
             point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
         }
     }
 
-    /// The ResNet-18 trunk.
-    pub fn trunk_mut(&mut self) -> &mut ResNet18 {
-        &mut self.trunk
-    }
-
     /// Trunk features `[B, T, C, h, w]` of normalised images `[B, T, 3, H, W]`.
-    pub fn features(&self, images: &Tensor, train: bool) -> Tensor {
+    fn features(&self, images: &Tensor, train: bool) -> Tensor {
         let s = images.size();
         let f = self.trunk.forward_t(&images.view([s[0] * s[1], s[2], s[3], s[4]]), train);
         let fs = f.size();
         f.view([s[0], s[1], fs[1], fs[2], fs[3]])
     }
+}
 
-    /// Predictions for `context` `[B, Tc, 3, H, W]` and an agent window `agent` `[B, Ta, 3, H, W]`.
-    /// Agent frame t's outputs depend only on the context and agent frames 0..=t.
-    pub fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
+impl PolicyNet for TransformerPolicy {
+    fn set_channels_last(&mut self, on: bool) {
+        self.trunk.set_channels_last(on)
+    }
+
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
         let tc = context.size()[1];
         let ta = agent.size()[1];
         let feats = self.features(&Tensor::cat(&[context, agent], 1), train);

@@ -1,0 +1,53 @@
+//! `eval` and `probe`: a policy in closed loop, and a trained one open loop on held-out expert windows.
+use super::args::{EvalArgs, ProbeArgs, parse_named};
+use super::default_workers;
+use anyhow::{Result, bail};
+use oneshot_lab::data::pairs::{PairDataset, Split};
+use oneshot_lab::device::parse_device;
+use oneshot_lab::eval::layouts::{Layouts, training_seeds};
+use oneshot_lab::eval::probe::{open_loop, print_probe};
+use oneshot_lab::eval::run::run_eval;
+use oneshot_lab::eval::summary::print_summary;
+use oneshot_lab::eval::{EvalConfig, Policy, PolicyFiles, Weights};
+use oneshot_lab::train::load_trained;
+
+/// Evaluates `expert`, `random` or a training folder and prints success per task and stage.
+pub fn eval(a: EvalArgs) -> Result<()> {
+    let mut config = EvalConfig::default();
+    config.episodes = a.episodes.unwrap_or(config.episodes);
+    config.horizon = a.horizon.unwrap_or(config.horizon);
+    config.seed = a.seed.unwrap_or(config.seed);
+    config.batch = a.batch.unwrap_or(config.batch);
+    config.device = a.device.unwrap_or(config.device);
+    config.tasks = a.tasks.unwrap_or(config.tasks);
+    config.strips = a.strips;
+    if let Some(action) = &a.action {
+        config.action = parse_named(action).map_err(|e| anyhow::anyhow!("--action {e} (sample or mode)"))?;
+    }
+    let layouts = match a.training_layouts.as_deref() {
+        Some([demos, agents]) => Layouts::Training { demos: demos.clone(), agents: agents.clone() },
+        Some(other) => bail!("--training-layouts takes DEMOS,AGENTS: two folders, not {}", other.len()),
+        None => Layouts::Fresh(training_seeds(&a.exclude_from)?),
+    };
+    let policy: PolicyFiles = Policy::parse(&a.policy, |dir| Weights { at: dir.into(), step: a.checkpoint });
+    let world = match (&policy, a.frames.given()) {
+        (_, false) => None,
+        (Policy::Network(_), true) => {
+            bail!("a trained policy is evaluated in the world it was trained in: drop --height, --width and --visuals")
+        }
+        (_, true) => Some(a.frames.world()),
+    };
+    let workers = a.workers.unwrap_or_else(default_workers);
+    let (_, summary) = run_eval(&policy, world.as_ref(), &config, &layouts, workers, a.out.as_deref())?;
+    print_summary(&summary);
+    Ok(())
+}
+
+/// Prints the open-loop errors of a trained policy per action dimension.
+pub fn probe(a: ProbeArgs) -> Result<()> {
+    let trained = load_trained(&a.policy, a.checkpoint, parse_device(&a.device)?)?;
+    let data = PairDataset::open(&a.demos, &a.agents, trained.summary.train.val_fraction)?;
+    let split = if a.train_split { Split::Train } else { Split::Val };
+    print_probe(&open_loop(&trained, &data, split, a.windows, 16, a.seed)?);
+    Ok(())
+}

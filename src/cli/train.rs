@@ -1,0 +1,28 @@
+//! `train`: a policy on a demonstrator and an agent collection.
+use super::args::TrainArgs;
+use anyhow::Result;
+use oneshot_lab::config::CellConfig;
+use oneshot_lab::train::{TrainRun, train as run};
+
+/// Trains into the output folder (resuming from its latest checkpoint) and prints the summary.
+pub fn train(a: TrainArgs) -> Result<()> {
+    let mut c = match &a.config {
+        Some(path) => CellConfig::load(path)?,
+        None => CellConfig::default(),
+    };
+    c.train.steps = a.steps.unwrap_or(c.train.steps);
+    c.train.batch_size = a.batch_size.unwrap_or(c.train.batch_size);
+    c.train.device = a.device.unwrap_or(c.train.device);
+    let paths = TrainRun { demo_dir: &a.demos, agent_dir: &a.agents, out: &a.out, progress: true };
+    let s = run(&c.model, &c.train, &paths)?;
+    println!(
+        "trained {} steps in {:.0} s ({} parameters): validation BC {:.3} -> {:.3}; weights in {}",
+        s.steps,
+        s.seconds,
+        s.parameters,
+        s.first_val_bc,
+        s.final_val_bc,
+        a.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,166 @@
+//! How an evaluation runs: episodes, horizon, the agent's window, and how the network's action is used.
+use super::history::HistoryMode;
+use super::workers::EpisodeSpec;
+use crate::model::config::ModelConfig;
+use crate::seeds::derive_seed;
+use crate::sim::env::{GripperYaw, WorldConfig};
+use crate::sim::task::{NUM_TASKS, Task};
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+use std::collections::HashSet;
+
+/// Which action the network's distribution yields at each step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ActionChoice {
+    /// A sample (the authors').
+    #[default]
+    Sample,
+    /// The mean of the most probable mixture component: no sampling noise, which matters while the learned
+    /// scales are still wide (short training runs).
+    Mode,
+}
+
+/// How to evaluate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalConfig {
+    /// Episodes, spread evenly over the tasks (episode i runs task `tasks[i mod len]`).
+    pub episodes: usize,
+    /// Agent actions per episode.
+    pub horizon: usize,
+    /// Root of the evaluation layouts and the policy's sampling.
+    pub seed: u64,
+    /// Task ids evaluated; in an experiment file they default to `collect.tasks`.
+    pub tasks: Vec<usize>,
+    /// Episodes run in lockstep (the network's batch).
+    pub batch: usize,
+    /// Action budget of the demonstrator's expert.
+    pub demo_max_actions: usize,
+    /// Demonstrator layouts tried before a demonstration counts as impossible.
+    pub demo_attempts: usize,
+    /// `auto`, `cpu`, `cuda` or `cuda:N` for the network.
+    pub device: String,
+    /// Episode indices to draw as PNG strips (context frames beside the agent's frames).
+    pub strips: Vec<usize>,
+    /// How the agent's recent frames are kept (the authors clear them once `history_frames` are held).
+    pub history: HistoryMode,
+    /// Most agent frames the network sees; at most `model.agent_frames - 1`, the window positions that
+    /// behaviour cloning trains.
+    pub history_frames: usize,
+    /// Sampled or most likely actions.
+    pub action: ActionChoice,
+    /// Replace the network's rotation by the agent expert's fixed orientation (the authors' test script does;
+    /// needs `world.agent_yaw = "fixed"`).
+    pub fixed_rotation: bool,
+    /// Gripper +1 (close) where the network's command is positive, else -1, and open on the last step (the
+    /// authors').
+    pub binarize_gripper: bool,
+    /// Training steps whose checkpoints are evaluated beside the final weights (success against training steps;
+    /// each a multiple of `train.checkpoint_interval`). Read by experiment files.
+    pub checkpoints: Vec<u64>,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        EvalConfig {
+            episodes: 160,
+            horizon: 60,
+            seed: 0,
+            tasks: (0..NUM_TASKS).collect(),
+            batch: 32,
+            demo_max_actions: 100,
+            demo_attempts: 10,
+            device: "auto".into(),
+            strips: Vec::new(),
+            history: HistoryMode::Reset,
+            history_frames: 5,
+            action: ActionChoice::Sample,
+            fixed_rotation: true,
+            binarize_gripper: true,
+            checkpoints: Vec::new(),
+        }
+    }
+}
+
+impl EvalConfig {
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        if self.episodes == 0 || self.horizon == 0 || self.batch == 0 {
+            bail!("eval.episodes, eval.horizon and eval.batch must be at least 1");
+        }
+        if self.demo_max_actions == 0 || self.demo_attempts == 0 {
+            bail!("eval.demo_max_actions and eval.demo_attempts must be at least 1");
+        }
+        if self.history_frames == 0 {
+            bail!("eval.history_frames must be at least 1");
+        }
+        if self.tasks.is_empty() {
+            bail!("eval.tasks is empty");
+        }
+        for &t in &self.tasks {
+            Task::from_id(t).with_context(|| format!("eval.tasks contains {t}"))?;
+        }
+        if let Some(i) = self.strips.iter().find(|&&i| i >= self.episodes) {
+            bail!("eval.strips contains episode {i}, but there are {} episodes", self.episodes);
+        }
+        crate::device::parse_device(&self.device)?;
+        Ok(())
+    }
+
+    /// Checks the settings that depend on the evaluated network and its world; errors name the keys.
+    pub fn check_policy(&self, model: &ModelConfig, world: &WorldConfig) -> Result<()> {
+        if self.history_frames + 1 > model.agent_frames {
+            bail!(
+                "eval.history_frames = {} exceeds model.agent_frames - 1 = {}: behaviour cloning never trains the \
+                 action at a later window position",
+                self.history_frames,
+                model.agent_frames - 1
+            );
+        }
+        if self.fixed_rotation && world.agent_yaw != GripperYaw::Fixed {
+            bail!(
+                "eval.fixed_rotation = true needs world.agent_yaw = \"fixed\" (the agent's expert turns its gripper)"
+            );
+        }
+        Ok(())
+    }
+
+    /// The episodes: tasks in rotation, layouts from the `eval` seed domain, none in `exclude` (training seeds).
+    pub fn episode_specs(&self, exclude: &HashSet<u64>) -> Vec<EpisodeSpec> {
+        let fresh = |domain: &str, i: usize| {
+            (0u64..)
+                .map(|attempt| derive_seed(domain, &[self.seed, i as u64, attempt]))
+                .find(|s| !exclude.contains(s))
+                .expect("some seed is not excluded")
+        };
+        (0..self.episodes)
+            .map(|i| EpisodeSpec {
+                index: i,
+                task: self.tasks[i % self.tasks.len()],
+                agent_seed: fresh("eval-agent", i),
+                demo_seed: fresh("eval-demo", i),
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_window_may_not_reach_untrained_positions() {
+        let model = ModelConfig::default();
+        let world = WorldConfig::default();
+        assert!(EvalConfig::default().check_policy(&model, &world).is_ok());
+        let six = EvalConfig { history_frames: 6, ..EvalConfig::default() };
+        assert!(six.check_policy(&model, &world).is_ok(), "positions 0..5 are trained with 7-frame windows");
+        let seven = EvalConfig { history_frames: 7, ..EvalConfig::default() };
+        let err = seven.check_policy(&model, &world).unwrap_err().to_string();
+        assert!(err.contains("eval.history_frames = 7") && err.contains("agent_frames"), "{err}");
+        let turning = WorldConfig { agent_yaw: GripperYaw::ObjectYaw, ..WorldConfig::default() };
+        let err = EvalConfig::default().check_policy(&model, &turning).unwrap_err().to_string();
+        assert!(err.contains("eval.fixed_rotation"), "{err}");
+    }
+}

@@ -1,0 +1,46 @@
+//! Evaluation's entry point: load the policy, run its episodes, and write the episodes, the summary and any strips
+//! into an output folder.
+use super::config::EvalConfig;
+use super::layouts::Layouts;
+use super::policy::{Policy, PolicyFiles};
+use super::rollout::rollouts;
+use super::summary::{EvalSummary, summarize};
+use super::{EpisodeResult, EvalOutput};
+use crate::sim::env::WorldConfig;
+use crate::train::{TrainedPolicy, load_trained};
+use anyhow::{Context, Result};
+use std::path::Path;
+
+/// File names of an evaluation folder.
+pub const EPISODES_FILE: &str = "episodes.jsonl";
+pub const SUMMARY_FILE: &str = "summary.json";
+
+/// Runs the evaluation of `policy` and, with `out`, writes the episodes, the summary and any strips there. A
+/// trained policy runs in the world it was trained in; `world`, if given, must be that world (reference policies
+/// run in `world` or the default world).
+pub fn run_eval(
+    policy: &PolicyFiles,
+    world: Option<&WorldConfig>,
+    config: &EvalConfig,
+    layouts: &Layouts,
+    workers: usize,
+    out: Option<&Path>,
+) -> Result<(Vec<EpisodeResult>, EvalSummary)> {
+    let device = crate::device::parse_device(&config.device)?;
+    let trained: Policy<TrainedPolicy> = policy.as_ref().try_map(|w| load_trained(&w.at, w.step, device))?;
+    let loaded = trained.as_ref();
+    let world = match &trained {
+        Policy::Network(t) => world.cloned().unwrap_or_else(|| t.summary.world.clone()),
+        _ => world.cloned().unwrap_or_default(),
+    };
+    let output = EvalOutput { strips_dir: out.map(|o| o.join("strips")) };
+    let results = rollouts(&loaded, &world, config, &layouts.episodes(config)?, workers, &output)?;
+    let summary = summarize(loaded.name(), &results);
+    if let Some(out) = out {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let lines: Vec<String> = results.iter().map(serde_json::to_string).collect::<Result<_, _>>()?;
+        crate::fsio::write_atomic(&out.join(EPISODES_FILE), lines.join("\n") + "\n")?;
+        crate::fsio::write_atomic(&out.join(SUMMARY_FILE), serde_json::to_string_pretty(&summary)? + "\n")?;
+    }
+    Ok((results, summary))
+}

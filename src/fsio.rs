@@ -1,0 +1,85 @@
+//! Writing files and folders so that an interrupted write never leaves something that looks complete: everything
+//! is written under a temporary name first and renamed into place.
+use anyhow::{Context, Result};
+use std::path::{Path, PathBuf};
+
+/// The temporary sibling a file is written to before its rename: `name.partial.ext` (the extension kept, since
+/// some writers choose the format by it).
+pub fn temporary_path(path: &Path) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    match path.extension() {
+        Some(ext) => path.with_file_name(format!("{stem}.partial.{}", ext.to_string_lossy())),
+        None => path.with_file_name(format!("{stem}.partial")),
+    }
+}
+
+/// Writes `path` through `write`, which is handed the temporary path to fill; renamed into place once it
+/// returns.
+pub fn write_with(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let tmp = temporary_path(path);
+    write(&tmp).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_atomic(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
+    write_with(path, |tmp| Ok(std::fs::write(tmp, bytes)?))
+}
+
+/// The hidden sibling folder `.name.partial` that a folder is built in before it is published.
+pub fn staging_sibling(dest: &Path) -> Result<PathBuf> {
+    let name = dest.file_name().with_context(|| format!("{} has no folder name", dest.display()))?;
+    let parent = dest.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    Ok(parent.join(format!(".{}.partial", name.to_string_lossy())))
+}
+
+/// Moves the finished folder `staging` to `dest`, replacing a stale `dest` left by an attempt that was never
+/// recorded as complete.
+pub fn publish_dir(staging: &Path, dest: &Path) -> Result<()> {
+    if dest.exists() {
+        std::fs::remove_dir_all(dest).with_context(|| format!("removing stale {}", dest.display()))?;
+    }
+    if let Some(parent) = dest.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    }
+    std::fs::rename(staging, dest).with_context(|| format!("moving {} to {}", staging.display(), dest.display()))
+}
+
+/// Removes the folder `dir` if it exists.
+pub fn remove_dir_if_present(dir: &Path) -> Result<()> {
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).with_context(|| format!("removing {}", dir.display()))?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temporary_names_keep_the_extension() {
+        assert_eq!(temporary_path(Path::new("a/model.safetensors")), Path::new("a/model.partial.safetensors"));
+        assert_eq!(temporary_path(Path::new("notes")), Path::new("notes.partial"));
+        assert_eq!(staging_sibling(Path::new("runs/set")).unwrap(), Path::new("runs/.set.partial"));
+    }
+
+    #[test]
+    fn a_failed_write_leaves_no_file_and_publishing_replaces_a_stale_folder() {
+        let dir = std::env::temp_dir().join(format!("oneshot-fsio-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("x.json");
+        assert!(write_with(&path, |_| anyhow::bail!("interrupted")).is_err());
+        assert!(!path.exists());
+        write_atomic(&path, "{}").unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "{}");
+        let (staging, dest) = (dir.join("staging"), dir.join("dest"));
+        std::fs::create_dir_all(&staging).unwrap();
+        std::fs::write(staging.join("new"), "").unwrap();
+        std::fs::create_dir_all(&dest).unwrap();
+        std::fs::write(dest.join("stale"), "").unwrap();
+        publish_dir(&staging, &dest).unwrap();
+        assert!(dest.join("new").exists() && !dest.join("stale").exists() && !staging.exists());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

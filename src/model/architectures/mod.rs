@@ -1,0 +1,33 @@
+//! The registry of policy architectures: each is one module here and one line of [`ARCHITECTURES`].
+//! `model.architecture` names an entry; building, training and evaluation reach the network only through
+//! [`super::policy::PolicyNet`].
+pub mod lstm;
+pub mod transformer;
+
+use super::config::ModelConfig;
+use super::policy::PolicyNet;
+use tch::nn;
+
+/// One architecture: its name in `model.architecture`, what it is, and how it is built.
+#[derive(Debug)]
+pub struct Registration {
+    pub name: &'static str,
+    pub description: &'static str,
+    /// Whether it has the inverse-dynamics and point heads (their loss weights must be zero otherwise).
+    pub auxiliary_heads: bool,
+    pub build: fn(&nn::Path, &ModelConfig) -> Box<dyn PolicyNet>,
+}
+
+/// Every architecture `model.architecture` may name.
+pub static ARCHITECTURES: &[Registration] =
+    &[transformer::TRANSFORMER, transformer::TEMPORAL_CONV, lstm::CONTEXTUAL_LSTM];
+
+/// The entry named `name`.
+pub fn find(name: &str) -> Option<&'static Registration> {
+    ARCHITECTURES.iter().find(|r| r.name == name)
+}
+
+/// The registered names, for error messages.
+pub fn names() -> Vec<&'static str> {
+    ARCHITECTURES.iter().map(|r| r.name).collect()
+}

@@ -1,0 +1,34 @@
+//! Artifact folders that no stage of the given plans uses, and their removal.
+use super::graph::{Plan, short};
+use super::stages::Kind;
+use super::store::Store;
+use anyhow::{Context, Result};
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+/// Artifact and staging folders under store `root` whose stage belongs to none of `plans`, sorted.
+pub fn unused_artifacts(root: &Path, plans: &[Plan]) -> Result<Vec<PathBuf>> {
+    let keep: HashSet<&str> = plans.iter().flat_map(|p| p.stages.keys().map(|k| short(k))).collect();
+    let artifacts = root.join("artifacts");
+    let mut unused = Vec::new();
+    for dir in Kind::ALL.iter().map(|k| k.name()).chain([".staging"]).map(|d| artifacts.join(d)) {
+        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        for e in entries {
+            let path = e?.path();
+            if !path.file_name().and_then(|n| n.to_str()).is_some_and(|n| keep.contains(n)) {
+                unused.push(path);
+            }
+        }
+    }
+    unused.sort();
+    Ok(unused)
+}
+
+/// Removes `folders` and marks their stages to be re-run.
+pub fn remove_artifacts(store: &mut Store, folders: &[PathBuf]) -> Result<()> {
+    for path in folders {
+        std::fs::remove_dir_all(path).with_context(|| format!("removing {}", path.display()))?;
+        store.forget_artifact(&path.to_string_lossy())?;
+    }
+    Ok(())
+}

@@ -1,0 +1,35 @@
+//! The collect stage: expert trajectories of one robot.
+use super::{MetricName, RunContext, StageOutputs, Upstream};
+use crate::config::CellConfig;
+use crate::data::collect::{CollectConfig, collect_into};
+use crate::pipeline::graph::Plan;
+use crate::sim::robot::Robot;
+use anyhow::Result;
+use std::path::Path;
+
+/// Implementation version of collection (part of every collect key).
+pub const VERSION: u32 = 2;
+
+/// What a collect stage runs.
+pub type CollectJob = CollectConfig;
+
+/// Adds the collection of `per_task` trajectories per task by `robot` for a cell; returns its key.
+pub fn add(plan: &mut Plan, robot: Robot, per_task: usize, cell: &CellConfig) -> String {
+    let job = CollectConfig { robot, per_task, world: cell.world.clone(), settings: cell.collect.clone() };
+    let inputs = serde_json::to_value(&job).expect("configurations serialise");
+    plan.add(inputs, Vec::new(), super::Job::Collect(job))
+}
+
+/// Collects into `staging`.
+pub fn run(job: &CollectJob, _upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
+    let manifest = collect_into(job, staging, ctx.workers, ctx.progress)?;
+    let retries: usize = manifest.trajectories.iter().map(|e| e.attempts - 1).sum();
+    Ok(StageOutputs {
+        metrics: vec![
+            (MetricName::Trajectories, manifest.trajectories.len() as f64),
+            (MetricName::Frames, manifest.total_steps() as f64),
+            (MetricName::ExpertRetries, retries as f64),
+        ],
+        ..StageOutputs::default()
+    })
+}

@@ -1,0 +1,57 @@
+//! The train stage: a policy trained on a demonstrator and an agent collection.
+use super::{MetricName, RunContext, StageOutputs, Upstream};
+use crate::config::CellConfig;
+use crate::model::config::ModelConfig;
+use crate::pipeline::graph::Plan;
+use crate::train::config::TrainConfig;
+use crate::train::{CURVE_FILE, TrainRun, curve, train};
+use anyhow::Result;
+use std::path::Path;
+
+/// Implementation version of training (part of every train key).
+pub const VERSION: u32 = 2;
+
+/// What a train stage runs: the network and training settings, and the keys of the two collections.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainJob {
+    pub model: ModelConfig,
+    pub train: TrainConfig,
+    pub demos: String,
+    pub agents: String,
+}
+
+/// Training settings that do not change results (where it runs, how far ahead batches are made, the tensor
+/// layout) are left out of keys, so that moving a run to another machine reuses the cache.
+fn identity(t: &TrainConfig) -> TrainConfig {
+    TrainConfig { device: "auto".into(), prefetch: 0, memory_format: Default::default(), ..t.clone() }
+}
+
+/// Adds a cell's training on the collections `demos` and `agents`; returns its key.
+pub fn add(plan: &mut Plan, cell: &CellConfig, demos: &str, agents: &str) -> String {
+    let inputs = serde_json::json!({ "model": cell.model, "train": identity(&cell.train) });
+    let job =
+        TrainJob { model: cell.model.clone(), train: cell.train.clone(), demos: demos.into(), agents: agents.into() };
+    plan.add(inputs, vec![demos.into(), agents.into()], super::Job::Train(job))
+}
+
+/// Trains into `staging`, resuming from the checkpoints an interrupted attempt left there.
+pub fn run(job: &TrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
+    let config = TrainConfig { device: ctx.device_or(&job.train.device), ..job.train.clone() };
+    let run = TrainRun {
+        demo_dir: upstream.get(&job.demos)?,
+        agent_dir: upstream.get(&job.agents)?,
+        out: staging,
+        progress: ctx.progress,
+    };
+    let summary = train(&job.model, &config, &run)?;
+    Ok(StageOutputs {
+        metrics: vec![
+            (MetricName::FirstValBc, summary.first_val_bc),
+            (MetricName::FinalValBc, summary.final_val_bc),
+            (MetricName::TrainSeconds, summary.seconds),
+            (MetricName::Parameters, summary.parameters as f64),
+        ],
+        curve: curve::read(&staging.join(CURVE_FILE), summary.steps)?,
+        ..StageOutputs::default()
+    })
+}
