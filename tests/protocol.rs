@@ -130,3 +130,20 @@ fn a_trained_policy_refuses_a_world_it_was_not_trained_in() {
     assert!(err.contains("no checkpoint at step 7"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn closing_on_arrival_closes_sooner_and_still_places() {
+    let first_close = |close_on_arrival: bool, seed: u64| {
+        let w = WorldConfig { close_on_arrival, ..world(32, 40) };
+        let mut env = Env::new(Robot::Panda, &w, false).unwrap();
+        let episode = run_expert(&mut env, &Instance::sample(Task::from_id(2).unwrap(), seed), 100, false).unwrap();
+        let close = episode.steps.iter().filter_map(|s| s.action).position(|a| a.gripper() > 0.0).unwrap();
+        (close, episode.milestones.placed)
+    };
+    for seed in 1..3 {
+        let (timed, timed_placed) = first_close(false, seed);
+        let (arrival, arrival_placed) = first_close(true, seed);
+        assert!(arrival < timed, "seed {seed}: closed at step {arrival} on arrival, {timed} timed");
+        assert!(timed_placed && arrival_placed, "seed {seed}");
+    }
+}

@@ -133,6 +133,9 @@ pub struct ExpertCheckArgs {
     /// The expert's gripper yaw rule: fixed, heading or object_yaw (default: the robot's in the default world).
     #[arg(long)]
     pub gripper_yaw: Option<String>,
+    /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
+    #[arg(long)]
+    pub close_on_arrival: bool,
 }
 
 /// Arguments of the `bench-world` command.
@@ -173,6 +176,9 @@ pub struct CollectArgs {
     /// collect.action_noise).
     #[arg(long)]
     pub action_noise: Option<f64>,
+    /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
+    #[arg(long)]
+    pub close_on_arrival: bool,
     #[command(flatten)]
     pub frames: FrameArgs,
 }
@@ -224,6 +230,10 @@ pub struct EvalArgs {
     /// `sample` the network's action distribution (the authors') or take its `mode` (default: eval.action).
     #[arg(long)]
     pub action: Option<String>,
+    /// `reset` the agent's frames once 5 are held (the authors') or keep a `sliding` window of the latest 5
+    /// (default: eval.history).
+    #[arg(long)]
+    pub history: Option<String>,
     /// Episodes in lockstep, the network's batch (default: eval.batch).
     #[arg(long)]
     pub batch: Option<usize>,

@@ -21,6 +21,9 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     config.device = a.device.unwrap_or(config.device);
     config.tasks = a.tasks.unwrap_or(config.tasks);
     config.strips = a.strips;
+    if let Some(history) = &a.history {
+        config.history = parse_named(history).map_err(|e| anyhow::anyhow!("--history {e} (reset or sliding)"))?;
+    }
     if let Some(action) = &a.action {
         config.action = parse_named(action).map_err(|e| anyhow::anyhow!("--action {e} (sample or mode)"))?;
     }

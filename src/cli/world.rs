@@ -11,7 +11,7 @@ use std::path::Path;
 
 /// `expert-check`: the expert's staged success per task.
 pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
-    let mut world = WorldConfig::default();
+    let mut world = WorldConfig { close_on_arrival: a.close_on_arrival, ..WorldConfig::default() };
     if let Some(rule) = &a.gripper_yaw {
         let rule =
             parse_named(rule).map_err(|e| anyhow::anyhow!("--gripper-yaw {e} (fixed, heading or object_yaw)"))?;
@@ -28,7 +28,8 @@ pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
 
 /// `collect`: expert trajectories into a new dataset folder.
 pub fn collect(a: CollectArgs) -> Result<()> {
-    let mut config = CollectConfig { world: a.frames.world(), ..CollectConfig::paper(a.robot) };
+    let world = WorldConfig { close_on_arrival: a.close_on_arrival, ..a.frames.world() };
+    let mut config = CollectConfig { world, ..CollectConfig::paper(a.robot) };
     config.per_task = a.per_task.unwrap_or(config.per_task);
     let s = &mut config.settings;
     s.seed = a.seed.unwrap_or(s.seed);

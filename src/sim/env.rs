@@ -52,6 +52,12 @@ pub struct WorldConfig {
     /// sawyer --gripper-yaw heading`), under the 95% a demonstrator needs, so the default closes the fingers
     /// across the object's narrow side (`object_yaw`), which also turns the gripper with the object.
     pub demo_yaw: GripperYaw,
+    /// When the experts close the gripper during the descent: `false` at the descent's 8th step, as the authors'
+    /// expert times it; `true` as soon as the grip site is within 1 cm of the grasp point (8 steps at the
+    /// latest), so that the gripper does not wait, motionless, at the bottom: from a few recent frames a policy
+    /// cannot tell that wait from the closing it must follow with a rise. Left out of stage keys when `false`.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub close_on_arrival: bool,
 }
 
 impl Default for WorldConfig {
@@ -65,6 +71,7 @@ impl Default for WorldConfig {
             pd_omega: 30.0,
             agent_yaw: GripperYaw::Fixed,
             demo_yaw: GripperYaw::ObjectYaw,
+            close_on_arrival: false,
         }
     }
 }

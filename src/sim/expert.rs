@@ -22,9 +22,12 @@ const HOVER: f64 = 0.2;
 const APPROACH_TOLERANCE: f64 = 0.05;
 /// The descent starts at this step at the latest.
 const LAST_APPROACH_STEP: usize = 14;
-/// Steps from the start of the descent to closing the gripper, to rising, and to the start of the carry.
+/// Steps from the start of the descent to closing the gripper (at the latest, with `close_on_arrival`).
 const CLOSE_AFTER: usize = 8;
-const RISE_AFTER: usize = CLOSE_AFTER + 3;
+/// Distance to the grasp point at which `close_on_arrival` closes the gripper.
+const ARRIVAL_TOLERANCE: f64 = 0.01;
+/// Steps from closing the gripper to rising, and to the start of the carry.
+const RISE_AFTER: usize = 3;
 const CARRY_AFTER: usize = RISE_AFTER + 2;
 /// Height of the carry point: 0.3 above the bin floor, kept inside the action's z range.
 const CARRY_Z: f64 = 1.1;
@@ -57,6 +60,10 @@ pub struct Expert {
     t: usize,
     /// Step at which the descent began.
     descent: Option<usize>,
+    /// Step at which the gripper began to close.
+    closed_at: Option<usize>,
+    /// Close as soon as the grasp point is reached (see [`super::env::WorldConfig::close_on_arrival`]).
+    close_on_arrival: bool,
     /// Where the gripper closed.
     grasp: Option<Vector3<f64>>,
     released: bool,
@@ -78,7 +85,8 @@ impl Expert {
                 wrap_angle(start_yaw + (p[1] - ee[1]).atan2(p[0] - ee[0]) + turn)
             }
         };
-        Expert { start_yaw, yaw, t: 0, descent: None, grasp: None, released: false }
+        let close_on_arrival = env.config().close_on_arrival;
+        Expert { start_yaw, yaw, t: 0, descent: None, closed_at: None, close_on_arrival, grasp: None, released: false }
     }
 
     /// Whether the expert has opened the gripper above the target and is only holding still.
@@ -98,29 +106,36 @@ impl Expert {
             let c = task.target_centre();
             Vector3::new(c[0], c[1], CARRY_Z)
         };
-        let (target, gripper) = match self.descent {
-            None => {
+        if let (Some(s), None) = (self.descent, self.closed_at) {
+            let z = (obj[2] + grasp_offset(task.object_kind())).max(MIN_GRASP_Z);
+            let arrived = self.close_on_arrival && (Vector3::new(obj[0], obj[1], z) - ee).norm() < ARRIVAL_TOLERANCE;
+            if arrived || t >= s + CLOSE_AFTER {
+                self.closed_at = Some(t);
+            }
+        }
+        let (target, gripper) = match (self.descent, self.closed_at) {
+            (None, _) => {
                 if (hover - ee).norm() < APPROACH_TOLERANCE || t >= LAST_APPROACH_STEP {
                     self.descent = Some(t);
                 }
                 (hover, -1.0)
             }
-            Some(s) if t < s + CLOSE_AFTER => {
+            (Some(_), None) => {
                 let z = (obj[2] + grasp_offset(task.object_kind())).max(MIN_GRASP_Z);
                 (Vector3::new(obj[0], obj[1], z), -1.0)
             }
-            Some(s) if t < s + RISE_AFTER => (*self.grasp.get_or_insert(ee), 1.0),
-            Some(s) if t < s + CARRY_AFTER => {
+            (_, Some(c)) if t < c + RISE_AFTER => (*self.grasp.get_or_insert(ee), 1.0),
+            (_, Some(c)) if t < c + CARRY_AFTER => {
                 let g = self.grasp.unwrap_or(ee);
                 (Vector3::new(g[0], g[1], g[2] + HOVER), 1.0)
             }
-            Some(_) if !self.released && ee[2] - obj[2] > LOST_BELOW => {
+            _ if !self.released && ee[2] - obj[2] > LOST_BELOW => {
                 // The grasp failed or the object slipped out: start over from above it.
-                (self.t, self.descent, self.grasp) = (1, None, None);
+                (self.t, self.descent, self.closed_at, self.grasp) = (1, None, None, None);
                 (hover, -1.0)
             }
-            Some(_) if !self.released && (carry - ee).norm() > release_distance(env.robot()) => (carry, 1.0),
-            Some(_) => {
+            _ if !self.released && (carry - ee).norm() > release_distance(env.robot()) => (carry, 1.0),
+            _ => {
                 self.released = true;
                 (ee, -1.0)
             }
