@@ -306,8 +306,8 @@ fn malformed_experiment_files_name_file_line_and_key() {
         ("[variants.x]\ntrain.los.inverse = 0.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "line 2", "los"][..]),
         ("[eval]\nepisodes = \"many\"\n", &["bad.toml", "line 2", "episodes"][..]),
         (
-            "[variants.lstm]\nmodel.architecture = \"contextual_lstm\"\n[grid]\nvariants = [\"lstm\"]\n",
-            &["bad.toml", "variant `lstm`", "train.loss.inverse"][..],
+            "[variants.x]\nmodel.architecture = \"hypernet\"\n[grid]\nvariants = [\"x\"]\n",
+            &["bad.toml", "variant `x`", "hypernet", "transformer, temporal_conv"][..],
         ),
         ("[train]\nlr = 0.1\nseed = 3\n", &["bad.toml", "line 3", "train.seed", "grid.seeds"][..]),
         ("[variants.s]\ntrain.seed = 3\n[grid]\nvariants = [\"s\"]\n", &["bad.toml", "variant `s`", "train.seed"][..]),

@@ -1,10 +1,12 @@
-//! Training on a small real collection: validation loss falls; the model's sizes are checked against the data.
+//! Training on a small real collection: validation loss falls for every architecture; the model's sizes are
+//! checked against the data.
 use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
-use oneshot_lab::model::config::ModelConfig;
+use oneshot_lab::model::architectures::ARCHITECTURES;
+use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
-use oneshot_lab::train::config::TrainConfig;
+use oneshot_lab::train::config::{LossWeights, TrainConfig};
 use oneshot_lab::train::{TrainRun, curve, train};
 
 fn tasks(ids: &[usize]) -> CollectSettings {
@@ -55,6 +57,26 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
         tch::Tensor::read_safetensors(split.join("model.safetensors")).unwrap().into_iter().collect();
     for (name, t) in &a {
         assert!(t.equal(&b[name]), "{name} differs after resuming");
+    }
+
+    // Every other registered architecture learns from the same data with its own losses.
+    for registration in ARCHITECTURES.iter().filter(|r| r.name != model.architecture.0) {
+        let other = ModelConfig { architecture: Architecture::named(registration.name), ..model.clone() };
+        let weights = if registration.auxiliary_heads {
+            config.loss.clone()
+        } else {
+            LossWeights { inverse: 0.0, point: 0.0, ..config.loss.clone() }
+        };
+        let short = TrainConfig { steps: 80, val_interval: 80, loss: weights, ..config.clone() };
+        let out = dir.join(registration.name);
+        let s = train(&other, &short, &TrainRun { out: &out, ..run }).unwrap();
+        assert!(
+            s.final_val_bc < s.first_val_bc - 0.1,
+            "{}: {} -> {}",
+            registration.name,
+            s.first_val_bc,
+            s.final_val_bc
+        );
     }
 
     let too_long = ModelConfig { context_frames: 500, ..model };

@@ -405,6 +405,9 @@ pub struct BenchTrainArgs {
     pub batch: Option<usize>,
     #[arg(long, default_value = "auto")]
     pub device: String,
+    /// Architectures to time, comma separated, or `all` (default: the configuration's, the transformer).
+    #[arg(long)]
+    pub architectures: Option<String>,
 }
 
 /// Arguments of the `bench-eval` command.

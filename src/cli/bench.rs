@@ -7,7 +7,8 @@ use oneshot_lab::data::loader::DeviceBatch;
 use oneshot_lab::device::parse_device;
 use oneshot_lab::eval::rollout::rollouts;
 use oneshot_lab::eval::{EvalConfig, EvalOutput, Policy};
-use oneshot_lab::model::config::ModelConfig;
+use oneshot_lab::model::architectures::ARCHITECTURES;
+use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::resnet::ResNet18;
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::stages::StageOutputs;
@@ -25,7 +26,12 @@ use tch::{Device, Kind, Tensor, nn};
 pub fn train(a: BenchTrainArgs) -> Result<()> {
     let mut c = bench_config(&a.config)?;
     c.batch = a.batch.unwrap_or(c.batch);
-    bench_train(&c, a.steps.max(1), &a.device)
+    let architectures: Vec<String> = match a.architectures.as_deref() {
+        None => vec![c.model.architecture.0.clone()],
+        Some("all") => ARCHITECTURES.iter().map(|r| r.name.to_string()).collect(),
+        Some(list) => list.split(',').map(|n| n.trim().to_string()).collect(),
+    };
+    bench_train(&c, a.steps.max(1), &a.device, &architectures)
 }
 
 /// `bench-eval`: rollouts per second of a small network and of the random policy.
@@ -102,8 +108,14 @@ fn seconds_per_step(steps: usize, device: Device, mut step: impl FnMut()) -> f64
     start.elapsed().as_secs_f64() / steps as f64
 }
 
-/// Times `steps` full training steps of the policy, then the trunk's forward + backward on the same frames.
-fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
+/// Resets the peak resident memory that [`peak_rss_kb`] reads (Linux `clear_refs`); false where it cannot.
+fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// Times `steps` full training steps of each architecture, then the ResNet-18 trunk's forward + backward on the
+/// same frames.
+fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[String]) -> Result<()> {
     let device = parse_device(device)?;
     tch::manual_seed(0);
     let batch = synthetic_batch(c, device);
@@ -112,11 +124,22 @@ fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
         "training benchmark `{}`: {}x{} frames, batch {} ({} frames per step), backbone width {}, device {:?}",
         c.name, c.image.height, c.image.width, c.batch, frames, c.model.backbone_width, device
     );
-
-    let (vs, policy) = build_policy(&c.model, device)?;
-    let mut opt = nn::Adam::default().build(&vs, 5e-4)?;
+    println!("  {:<18} {:>12} {:>10} {:>9} {:>12}", "architecture", "parameters", "s/step", "steps/s", "peak memory");
     let weights = LossWeights::default();
-    let model_s = seconds_per_step(steps, device, || opt.backward_step(&weights.total(&policy.losses(&batch, true))));
+    for name in architectures {
+        let model = ModelConfig { architecture: Architecture::named(name), ..c.model.clone() };
+        let (vs, policy) = build_policy(&model, device)?;
+        let parameters: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
+        let mut opt = nn::Adam::default().build(&vs, 5e-4)?;
+        let fresh_peak = reset_peak_rss();
+        let s = seconds_per_step(steps, device, || opt.backward_step(&weights.total(&policy.losses(&batch, true))));
+        let memory = match (device, peak_rss_kb()) {
+            (Device::Cpu, Some(kb)) if fresh_peak => format!("{:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
+            (Device::Cpu, Some(kb)) => format!("<= {:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
+            _ => "see nvidia-smi".to_string(),
+        };
+        println!("  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {memory:>12}", 1.0 / s);
+    }
 
     let trunk_vs = nn::VarStore::new(device);
     let trunk = ResNet18::new(&trunk_vs.root(), c.model.backbone_width, c.model.backbone_stages);
@@ -132,17 +155,7 @@ fn bench_train(c: &BenchConfig, steps: usize, device: &str) -> Result<()> {
         }
     };
     let trunk_s = seconds_per_step(steps, device, trunk_step);
-
-    println!("  full training step     : {:>8.3} s/step  {:>7.2} steps/s", model_s, 1.0 / model_s);
-    println!("  trunk forward+backward : {:>8.3} s/step  {:>7.2} steps/s", trunk_s, 1.0 / trunk_s);
-    println!("  model on top of trunk  : {:>7.0}% of the step", 100.0 * (model_s - trunk_s).max(0.0) / model_s);
-    match (device, peak_rss_kb()) {
-        (Device::Cpu, Some(kb)) => println!("  peak memory (process)  : {:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
-        (Device::Cuda(_), _) => {
-            println!("  peak GPU memory        : see nvidia-smi (tch exposes no allocator statistics)")
-        }
-        _ => {}
-    }
+    println!("  {:<18} {:>12} {trunk_s:>10.3} {:>9.2}", "ResNet-18 trunk", "", 1.0 / trunk_s);
     Ok(())
 }
 

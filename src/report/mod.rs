@@ -4,6 +4,7 @@ pub mod paper;
 pub mod plots;
 pub mod tables;
 
+use crate::config::FULL;
 use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
 use crate::pipeline::store::read::ExperimentRecord;
@@ -38,6 +39,16 @@ fn context_table(rows: &[&ResultRow]) -> String {
     s
 }
 
+/// The rows of the architecture figure: the full model and every configuration that changes the architecture,
+/// with the default context.
+fn architecture_rows<'a>(rows: &[&'a ResultRow]) -> Vec<&'a ResultRow> {
+    rows.iter()
+        .copied()
+        .filter(|r| r.context.as_deref() == Some("spread"))
+        .filter(|r| r.variant.as_deref() == Some(FULL) || r.architecture.as_deref().is_some_and(|a| a != "transformer"))
+        .collect()
+}
+
 /// Writes every table and figure of `experiment` into `out` (replacing it as a whole once complete).
 pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     let cells = store.cells(experiment)?;
@@ -58,7 +69,21 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     let at_largest: Vec<&ResultRow> = rows.iter().filter(|r| r.size.is_some() && r.size == largest).collect();
     write("context.md", &context_table(&at_largest))?;
 
-    plots::success_bars(&staging, &rows)?;
+    let all = plots::Bars {
+        name: "success_by_configuration",
+        caption: "Task success (placed) per configuration, 95% CI",
+        rows: rows.iter().collect(),
+    };
+    plots::success_bars(&staging, &all)?;
+    let architectures = architecture_rows(&at_largest);
+    if architectures.len() > 1 {
+        let bars = plots::Bars {
+            name: "success_by_architecture",
+            caption: "Task success (placed) per architecture, 95% CI (paper Fig. 3)",
+            rows: architectures.clone(),
+        };
+        plots::success_bars(&staging, &bars)?;
+    }
     plots::success_vs_size(&staging, &rows)?;
     let mut curves = Vec::new();
     for r in &at_largest {
@@ -100,6 +125,9 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         index += "\n![success against training steps](success_vs_steps.png)\n";
     }
     index += "\n## Figures\n\n![success per configuration](success_by_configuration.png)\n\n";
+    if architectures.len() > 1 {
+        index += "![success per architecture](success_by_architecture.png)\n\n";
+    }
     index += "![success vs training data](success_vs_size.png)\n\n![BC loss curves](loss_curves.png)\n\n";
     index += "SVG versions sit beside the PNGs.\n\n## Sources\n\n| model | train stages | eval stages |\n| --- | --- | --- |\n";
     for r in &rows {
@@ -112,4 +140,40 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
 
     crate::fsio::publish_dir(&staging, out)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(variant: &str, architecture: &str, context: &str) -> ResultRow {
+        ResultRow {
+            label: format!("{variant} @ 480"),
+            policy: "network".into(),
+            size: Some(480),
+            variant: Some(variant.into()),
+            context: Some(context.into()),
+            architecture: Some(architecture.into()),
+            seeds_done: 0,
+            seeds_total: 1,
+            pooled: None,
+            mean: None,
+            train_keys: Vec::new(),
+            eval_keys: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn the_architecture_figure_shows_the_full_model_and_each_other_architecture() {
+        let rows = [
+            row("full", "transformer", "spread"),
+            row("no_inverse", "transformer", "spread"),
+            row("conv_lstm", "conv_lstm", "spread"),
+            row("final_frame", "transformer", "final"),
+            row("no_attention", "temporal_conv", "spread"),
+        ];
+        let refs: Vec<&ResultRow> = rows.iter().collect();
+        let shown: Vec<&str> = architecture_rows(&refs).iter().filter_map(|r| r.variant.as_deref()).collect();
+        assert_eq!(shown, ["full", "conv_lstm", "no_attention"]);
+    }
 }

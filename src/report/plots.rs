@@ -67,14 +67,21 @@ fn draw_legend<'a, CT: CoordTranslate>(
     Ok(())
 }
 
-/// Bars of `placed` (with 95% whiskers) for every row, `missing` written where a row has no results; the paper's
-/// value as a grey marker.
-pub fn success_bars(dir: &Path, rows: &[ResultRow]) -> Result<()> {
-    let shown: Vec<&ResultRow> = rows.iter().collect();
-    draw(dir, "success_by_configuration", |root| {
+/// What a bar figure shows: its file name, caption and rows.
+pub struct Bars<'a> {
+    pub name: &'a str,
+    pub caption: &'a str,
+    pub rows: Vec<&'a ResultRow>,
+}
+
+/// Bars of `placed` (with 95% whiskers) for every row of `bars`, `missing` written where a row has no results;
+/// the paper's value as a grey marker.
+pub fn success_bars(dir: &Path, bars: &Bars) -> Result<()> {
+    let shown = &bars.rows;
+    draw(dir, bars.name, |root| {
         let n = shown.len().max(1) as f64;
         let mut chart = ChartBuilder::on(&root)
-            .caption("Task success (placed) per configuration, 95% CI", ("sans-serif", 24))
+            .caption(bars.caption, ("sans-serif", 24))
             .margin(16)
             .x_label_area_size(70)
             .y_label_area_size(60)

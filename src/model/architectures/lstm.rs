@@ -1,9 +1,11 @@
 //! The Contextual-LSTM baseline of the paper: per-frame ResNet-18 + spatial softmax + MLP embeddings, an encoder
 //! LSTM over the context, and a decoder LSTM over the agent's frames that attends over the encoded context and its
-//! own past states; the same action head. Trained with behaviour cloning only.
+//! own past states; the same action head. The paper trains it with behaviour cloning only (set the inverse and
+//! point loss weights to 0); with the full losses, its inverse-dynamics head reads consecutive frame embeddings
+//! and its point head the encoded context.
 use super::Registration;
 use crate::model::config::ModelConfig;
-use crate::model::heads::{EmbeddingMlp, spatial_softmax};
+use crate::model::heads::{EmbeddingMlp, PointHead, spatial_softmax};
 use crate::model::mixture::{MixtureHead, MixtureSpec};
 use crate::model::policy::{PolicyNet, PolicyOutput};
 use crate::model::resnet::ResNet18;
@@ -13,8 +15,8 @@ use tch::{Kind, Tensor};
 /// The paper's Contextual-LSTM baseline.
 pub const CONTEXTUAL_LSTM: Registration = Registration {
     name: "contextual_lstm",
-    description: "the Contextual-LSTM baseline: encoder and decoder LSTMs over frame embeddings, BC only",
-    auxiliary_heads: false,
+    description: "the Contextual-LSTM baseline: encoder and decoder LSTMs over frame embeddings",
+    auxiliary_heads: true,
     build: |vs, config| Box::new(ContextualLstm::new(vs, config)),
 };
 
@@ -27,6 +29,8 @@ pub struct ContextualLstm {
     decoder: nn::LSTM,
     policy: nn::Linear,
     action_head: MixtureHead,
+    inverse: nn::Linear,
+    point_head: PointHead,
 }
 
 impl ContextualLstm {
@@ -43,6 +47,9 @@ impl ContextualLstm {
             decoder: nn::lstm(vs / "decoder", latent, hidden, rnn),
             policy: nn::linear(vs / "policy", 2 * hidden, config.policy_hidden, Default::default()),
             action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
+            // Built last, so that the weights above are drawn as they were before these heads existed.
+            inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
+            point_head: PointHead::new(&(vs / "point_head"), hidden, config.point_hidden),
         }
     }
 
@@ -61,7 +68,8 @@ impl PolicyNet for ContextualLstm {
     fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
         let (tc, ta) = (context.size()[1], agent.size()[1]);
         let (encoded, state) = self.encoder.seq(&self.embed_frames(context, train));
-        let (decoded, _) = self.decoder.seq_init(&self.embed_frames(agent, train), &state);
+        let frames = self.embed_frames(agent, train);
+        let (decoded, _) = self.decoder.seq_init(&frames, &state);
         // Each decoder step attends over every context step and the decoder steps up to itself.
         let memory = Tensor::cat(&[&encoded, &decoded], 1);
         let scale = (decoded.size()[2] as f64).sqrt();
@@ -73,6 +81,12 @@ impl PolicyNet for ContextualLstm {
         let attended =
             scores.masked_fill(&visible.logical_not(), f64::NEG_INFINITY).softmax(-1, Kind::Float).matmul(&memory);
         let hidden = self.policy.forward(&Tensor::cat(&[decoded, attended], -1)).relu();
-        PolicyOutput { actions: self.action_head.forward(&hidden), inverse: None, point: None }
+        let pairs = Tensor::cat(&[frames.narrow(1, 0, ta - 1), frames.narrow(1, 1, ta - 1)], -1);
+        let context_summary = encoded.select(1, tc - 1);
+        PolicyOutput {
+            actions: self.action_head.forward(&hidden),
+            inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
+            point: Some(self.point_head.forward(&context_summary)),
+        }
     }
 }

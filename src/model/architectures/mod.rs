@@ -1,6 +1,7 @@
 //! The registry of policy architectures: each is one module here and one line of [`ARCHITECTURES`].
 //! `model.architecture` names an entry; building, training and evaluation reach the network only through
 //! [`super::policy::PolicyNet`].
+pub mod ablated;
 pub mod lstm;
 pub mod transformer;
 
@@ -19,8 +20,15 @@ pub struct Registration {
 }
 
 /// Every architecture `model.architecture` may name.
-pub static ARCHITECTURES: &[Registration] =
-    &[transformer::TRANSFORMER, transformer::TEMPORAL_CONV, lstm::CONTEXTUAL_LSTM];
+pub static ARCHITECTURES: &[Registration] = &[
+    transformer::TRANSFORMER,
+    transformer::TEMPORAL_CONV,
+    lstm::CONTEXTUAL_LSTM,
+    ablated::CONV,
+    ablated::CONV_LSTM,
+    ablated::RESNET,
+    ablated::RESNET_LSTM,
+];
 
 /// The entry named `name`.
 pub fn find(name: &str) -> Option<&'static Registration> {
