@@ -53,3 +53,25 @@ fn collect_with_a_task_out_of_range_is_an_error_naming_it() {
     assert!(err.contains("17") && err.lines().count() == 1, "{err}");
     assert!(!std::path::Path::new("/tmp/never-written").exists());
 }
+
+#[test]
+fn commands_that_read_a_store_refuse_a_folder_without_one() {
+    let dir = std::env::temp_dir().join(format!("oneshot-test-cli-nostore-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let store = dir.to_str().unwrap();
+    let commands: [&[&str]; 5] = [
+        &["status", "--store", store],
+        &["why", "abc123", "--store", store],
+        &["report", "experiments/smoke.toml", "--store", store],
+        &["query", "cells", "--store", store],
+        &["gc", "experiments/smoke.toml", "--store", store],
+    ];
+    for args in commands {
+        let out = oneshot().args(args).output().unwrap();
+        assert!(!out.status.success(), "{args:?} succeeded");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("no results store at") && err.contains(store), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0, "nothing is created in the folder");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

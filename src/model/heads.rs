@@ -1,4 +1,8 @@
-//! Small heads of the policy: spatial softmax, the normalised embedding MLP, and the 2-D Gaussian point head.
+//! Small heads of the policy: spatial softmax, the normalised embedding MLP, the 2-D Gaussian point head, and the
+//! action, inverse-dynamics and point heads that every architecture with the paper's losses ends in.
+use super::config::ModelConfig;
+use super::mixture::{MixtureHead, MixtureSpec};
+use super::policy::PolicyOutput;
 use tch::nn::{self, Module, ModuleT};
 use tch::{Kind, Tensor};
 
@@ -81,6 +85,42 @@ impl PointHead {
         let c = y.narrow(1, 3, 1);
         let b = y.narrow(1, 4, 1).softplus() + 0.03;
         PointPrediction { mean, cholesky: Tensor::cat(&[a, c, b], 1) }
+    }
+}
+
+/// The paper's heads over a task embedding and per-frame embeddings: the action from [task, frame], inverse
+/// dynamics from consecutive frames (through the same mixture head), the point from the task.
+#[derive(Debug)]
+pub struct PolicyHeads {
+    policy: nn::Linear,
+    inverse: nn::Linear,
+    action_head: MixtureHead,
+    point_head: PointHead,
+}
+
+impl PolicyHeads {
+    /// Heads over `latent`-wide embeddings, under `vs` (parameters `policy`, `inverse`, `action_head`,
+    /// `point_head`).
+    pub fn new(vs: &nn::Path, latent: i64, config: &ModelConfig) -> PolicyHeads {
+        PolicyHeads {
+            policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
+            inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
+            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
+            point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
+        }
+    }
+
+    /// Outputs for a task embedding `[B, latent]` and frame embeddings `[B, Ta, latent]`.
+    pub fn forward(&self, task: &Tensor, frames: &Tensor) -> PolicyOutput {
+        let (b, ta) = (frames.size()[0], frames.size()[1]);
+        let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
+        let hidden = self.policy.forward(&Tensor::cat(&[&task_per_frame, frames], -1)).relu();
+        let pairs = Tensor::cat(&[frames.narrow(1, 0, ta - 1), frames.narrow(1, 1, ta - 1)], -1);
+        PolicyOutput {
+            actions: self.action_head.forward(&hidden),
+            inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
+            point: Some(self.point_head.forward(task)),
+        }
     }
 }
 

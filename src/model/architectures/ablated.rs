@@ -6,8 +6,7 @@
 //! inverse dynamics from consecutive frames, and the point from the task.
 use super::Registration;
 use crate::model::config::ModelConfig;
-use crate::model::heads::{PointHead, spatial_softmax};
-use crate::model::mixture::{MixtureHead, MixtureSpec};
+use crate::model::heads::{PolicyHeads, spatial_softmax};
 use crate::model::policy::{PolicyNet, PolicyOutput};
 use crate::model::resnet::ResNet18;
 use tch::Tensor;
@@ -140,10 +139,7 @@ pub struct AblatedPolicy {
     to_task: TwoLayer,
     to_latent: TwoLayer,
     lstm: Option<nn::LSTM>,
-    policy: nn::Linear,
-    inverse: nn::Linear,
-    action_head: MixtureHead,
-    point_head: PointHead,
+    heads: PolicyHeads,
 }
 
 impl AblatedPolicy {
@@ -166,10 +162,7 @@ impl AblatedPolicy {
             to_task: TwoLayer::new(&(vs / "to_task"), task_frames * features, features, latent),
             to_latent: TwoLayer::new(&(vs / "to_latent"), features, latent, latent),
             lstm: lstm.then(|| nn::lstm(vs / "lstm", latent, latent, rnn)),
-            policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
-            inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
-            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
-            point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
+            heads: PolicyHeads::new(vs, latent, config),
         }
     }
 
@@ -201,14 +194,6 @@ impl PolicyNet for AblatedPolicy {
         if let Some(lstm) = &self.lstm {
             latents = lstm.seq(&latents).0;
         }
-        let frames = latents.narrow(1, tc, ta);
-        let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
-        let hidden = self.policy.forward(&Tensor::cat(&[&task_per_frame, &frames], -1)).relu();
-        let pairs = Tensor::cat(&[frames.narrow(1, 0, ta - 1), frames.narrow(1, 1, ta - 1)], -1);
-        PolicyOutput {
-            actions: self.action_head.forward(&hidden),
-            inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
-            point: Some(self.point_head.forward(&task)),
-        }
+        self.heads.forward(&task, &latents.narrow(1, tc, ta))
     }
 }

@@ -5,12 +5,11 @@ use crate::model::attention::{
     AttentionLayer, AttentionSpec, ConvBlock, conv3d_config, frame_causal_mask, positional_encoding,
 };
 use crate::model::config::ModelConfig;
-use crate::model::heads::{EmbeddingMlp, PointHead, spatial_softmax};
-use crate::model::mixture::{MixtureHead, MixtureSpec};
+use crate::model::heads::{EmbeddingMlp, PolicyHeads, spatial_softmax};
 use crate::model::policy::{PolicyNet, PolicyOutput};
 use crate::model::resnet::ResNet18;
 use tch::Tensor;
-use tch::nn::{self, Module, ModuleT};
+use tch::nn::{self, ModuleT};
 
 /// The paper's model.
 pub const TRANSFORMER: Registration = Registration {
@@ -71,10 +70,7 @@ pub struct TransformerPolicy {
     task_conv: nn::Conv<[i64; 3]>,
     /// One MLP embeds agent frames and the task alike (the authors share it).
     embed: EmbeddingMlp,
-    policy: nn::Linear,
-    inverse: nn::Linear,
-    action_head: MixtureHead,
-    point_head: PointHead,
+    heads: PolicyHeads,
 }
 
 impl TransformerPolicy {
@@ -99,10 +95,7 @@ impl TransformerPolicy {
             task_attention: Mixer::new(&(vs / "task_attention"), mixing, spec, false),
             task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv3d_config([0, 0, 0])),
             embed: EmbeddingMlp::new(&(vs / "embed"), 2 * c, hidden, latent, config.dropout),
-            policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
-            inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
-            action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
-            point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
+            heads: PolicyHeads::new(vs, latent, config),
         }
     }
 
@@ -147,14 +140,6 @@ impl PolicyNet for TransformerPolicy {
         let pooled = task_frames.apply(&self.task_conv).mean_dim([2i64].as_slice(), false, tch::Kind::Float);
         let task = self.embed.forward_t(&spatial_softmax(&pooled), train);
 
-        let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
-        let hidden = self.policy.forward(&Tensor::cat(&[&task_per_frame, &e], -1)).relu();
-        let pairs = Tensor::cat(&[e.narrow(1, 0, ta - 1), e.narrow(1, 1, ta - 1)], -1);
-        let inv_hidden = self.inverse.forward(&pairs).relu();
-        PolicyOutput {
-            actions: self.action_head.forward(&hidden),
-            inverse: Some(self.action_head.forward(&inv_hidden)),
-            point: Some(self.point_head.forward(&task)),
-        }
+        self.heads.forward(&task, &e)
     }
 }
