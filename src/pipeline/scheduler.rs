@@ -4,7 +4,7 @@ use super::executor::{Executor, Local};
 use super::graph::{Plan, Stage, short};
 use super::slurm::{Slurm, SlurmOptions};
 use super::stages::StageOutputs;
-use super::store::{Claim, StageState, Store};
+use super::store::{Claim, Holder, StageState, Store, now};
 use anyhow::Result;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -130,6 +130,17 @@ struct Scheduler<'a> {
     clock: Instant,
     tx: Sender<Finished>,
     rx: Receiver<Finished>,
+    /// Stages held by another process whose wait was already announced.
+    announced_waits: HashSet<String>,
+}
+
+/// What a run says when a stage it needs is being run by another process.
+fn waiting_message(stage: &str, holder: &Holder) -> String {
+    let since = (now() - holder.started_at).max(0.0);
+    format!(
+        "waiting: {stage} is being run by pid {} on {} (started {since:.0} s ago); this run goes on when it ends",
+        holder.pid, holder.host
+    )
 }
 
 impl Scheduler<'_> {
@@ -178,9 +189,12 @@ impl Scheduler<'_> {
                     self.report.cached.push(k);
                     self.free_gpus.extend(gpu);
                 }
-                Claim::Busy => {
+                Claim::Busy(holder) => {
                     waiting_on_others = true;
                     self.free_gpus.extend(gpu);
+                    if self.announced_waits.insert(k.clone()) {
+                        eprintln!("{}", waiting_message(&display_name(stage, &self.labels), &holder));
+                    }
                 }
                 Claim::Acquired(attempt) => self.launch(&k, attempt, gpu),
             }
@@ -275,6 +289,7 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
         clock: Instant::now(),
         tx,
         rx,
+        announced_waits: HashSet::new(),
     };
     for k in s.keys.clone() {
         let status = s.initial_status(&k)?;
@@ -305,6 +320,14 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
 #[cfg(test)]
 mod tests {
     use super::matches;
+
+    #[test]
+    fn the_waiting_message_names_the_stage_the_process_and_how_long() {
+        let holder = super::Holder { host: "node7".into(), pid: 4242, started_at: super::now() - 90.0 };
+        let m = super::waiting_message("n32-full-s0/train", &holder);
+        assert!(m.starts_with("waiting: n32-full-s0/train is being run by pid 4242 on node7"), "{m}");
+        assert!(m.contains("(started 90 s ago)") || m.contains("(started 91 s ago)"), "{m}");
+    }
 
     #[test]
     fn patterns_match_substrings_and_globs() {

@@ -85,13 +85,22 @@ pub enum StageState {
 }
 
 /// Outcome of trying to claim a stage.
-#[derive(Debug, PartialEq, Eq)]
+#[derive(Debug, PartialEq)]
 pub enum Claim {
     /// This process now runs it; the attempt id.
     Acquired(i64),
     AlreadyDone,
     /// A live process runs it.
-    Busy,
+    Busy(Holder),
+}
+
+/// The process running a stage: where, which, and since when.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Holder {
+    pub host: String,
+    pub pid: i64,
+    /// Seconds since the Unix epoch.
+    pub started_at: f64,
 }
 
 /// An open results store.
@@ -223,16 +232,17 @@ impl Store {
         if status == "done" && !force {
             return Ok(Claim::AlreadyDone);
         }
-        let running: Option<(i64, String, i64)> = tx
+        let running: Option<(i64, String, i64, f64)> = tx
             .query_row(
-                "SELECT id, host, pid FROM attempts WHERE stage_key = ?1 AND status = 'running' ORDER BY id DESC LIMIT 1",
+                "SELECT id, host, pid, started_at FROM attempts WHERE stage_key = ?1 AND status = 'running' \
+                 ORDER BY id DESC LIMIT 1",
                 [key],
-                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
             )
             .optional()?;
-        if let Some((id, rh, rpid)) = running {
+        if let Some((id, rh, rpid, started_at)) = running {
             if rh != h || alive(rpid) && rpid != pid {
-                return Ok(Claim::Busy);
+                return Ok(Claim::Busy(Holder { host: rh, pid: rpid, started_at }));
             }
             tx.execute(
                 "UPDATE attempts SET status = 'failed', finished_at = ?2, error = 'interrupted (process gone)' WHERE id = ?1",
@@ -329,5 +339,30 @@ impl Store {
         Ok(self
             .conn
             .query_row("SELECT AVG(seconds) FROM stages WHERE kind = ?1 AND status = 'done'", [kind], |r| r.get(0))?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stage_another_host_runs_is_busy_and_names_its_holder() {
+        let root = std::env::temp_dir().join(format!("oneshot-store-claim-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), None).unwrap();
+        let stage = &plan.stages[&plan.order[0]];
+        let mut store = Store::open(&root).unwrap();
+        store.register(&[stage]).unwrap();
+        store
+            .conn
+            .execute(
+                "INSERT INTO attempts (stage_key, status, host, pid, started_at) VALUES (?1, 'running', 'node7', 4242, 100.5)",
+                [&stage.key],
+            )
+            .unwrap();
+        let holder = Holder { host: "node7".into(), pid: 4242, started_at: 100.5 };
+        assert_eq!(store.claim(&stage.key, false).unwrap(), Claim::Busy(holder));
+        std::fs::remove_dir_all(&root).unwrap();
     }
 }
