@@ -75,3 +75,11 @@ fn commands_that_read_a_store_refuse_a_folder_without_one() {
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0, "nothing is created in the folder");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn an_unknown_architecture_to_benchmark_is_an_error_naming_it() {
+    let out = oneshot().args(["bench-train", "--architectures", "transfomer", "--device", "cpu"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--architectures") && err.contains("transfomer"), "{err}");
+}

@@ -31,6 +31,10 @@ pub fn train(a: BenchTrainArgs) -> Result<()> {
         Some("all") => ARCHITECTURES.iter().map(|r| r.name.to_string()).collect(),
         Some(list) => list.split(',').map(|n| n.trim().to_string()).collect(),
     };
+    if let Some(unknown) = architectures.iter().find(|n| Architecture::named(n).registration().is_none()) {
+        let names: Vec<&str> = ARCHITECTURES.iter().map(|r| r.name).collect();
+        bail!("--architectures names `{unknown}`, which is not registered (all, {})", names.join(", "));
+    }
     bench_train(&c, a.steps.max(1), &a.device, &architectures)
 }
 
