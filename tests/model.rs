@@ -10,6 +10,16 @@ use oneshot_lab::train::config::LossWeights;
 use oneshot_lab::train::{build_policy, checkpoint};
 use tch::{Device, Kind, Tensor, nn};
 
+/// libtorch's random generator is global: tests that seed it and draw from it hold this lock, so that each one's
+/// draws do not depend on what other test threads draw meanwhile.
+static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn seeded(seed: i64) -> std::sync::MutexGuard<'static, ()> {
+    let guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::manual_seed(seed);
+    guard
+}
+
 fn tiny() -> ModelConfig {
     ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, dropout: 0.0, ..ModelConfig::default() }
 }
@@ -27,13 +37,13 @@ fn scratch(name: &str) -> std::path::PathBuf {
 
 #[test]
 fn a_future_agent_frame_does_not_change_earlier_outputs() {
+    let _rng = seeded(0);
     for registration in ARCHITECTURES {
         future_frames_stay_invisible(ModelConfig { architecture: Architecture::named(registration.name), ..tiny() });
     }
 }
 
 fn future_frames_stay_invisible(model: ModelConfig) {
-    tch::manual_seed(0);
     let (_vs, policy) = build_policy(&model, Device::Cpu).unwrap();
     let context = images(2, 4);
     let agent = images(2, 7);
@@ -57,7 +67,7 @@ fn future_frames_stay_invisible(model: ModelConfig) {
 
 #[test]
 fn a_tiny_model_overfits_one_batch() {
-    tch::manual_seed(1);
+    let _rng = seeded(1);
     let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
     let batch = DeviceBatch {
         context: images(2, 4),
@@ -82,10 +92,10 @@ fn a_tiny_model_overfits_one_batch() {
 fn a_checkpoint_round_trips_exactly_and_refuses_another_architecture() {
     let dir = scratch("ckpt");
     let path = dir.join("a.safetensors");
-    tch::manual_seed(2);
+    let _rng = seeded(2);
     let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
     checkpoint::save(&vs, &path).unwrap();
-    tch::manual_seed(3);
+    tch::manual_seed(3); // still under the lock taken above
     let (mut vs2, policy2) = build_policy(&tiny(), Device::Cpu).unwrap();
     checkpoint::load(&mut vs2, &path).unwrap();
     let (v1, v2) = (vs.variables(), vs2.variables());
@@ -109,7 +119,7 @@ fn a_checkpoint_round_trips_exactly_and_refuses_another_architecture() {
 fn pretrained_backbone_weights_load_by_torchvision_name() {
     let dir = scratch("pretrained");
     let path = dir.join("resnet18.safetensors");
-    tch::manual_seed(4);
+    let _rng = seeded(4);
     let source = nn::VarStore::new(Device::Cpu);
     let _trunk = ResNet18::new(&source.root(), 8, 4);
     source.save(&path).unwrap();
