@@ -68,3 +68,38 @@ fn evaluation_layouts_avoid_training_seeds() {
     assert!(second.iter().all(|e| !taken.contains(&e.agent_seed) && !taken.contains(&e.demo_seed)));
     assert_eq!(first[10], second[10], "episodes without a clash keep their layouts");
 }
+
+#[test]
+fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head() {
+    use oneshot_lab::eval::config::Control;
+    use oneshot_lab::model::config::Architecture;
+    let save = |name: &str, model: ModelConfig| {
+        let dir = scratch(name);
+        tch::manual_seed(6);
+        let (vs, _) = build_policy(&model, tch::Device::Cpu).unwrap();
+        checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
+        let summary = TrainSummary::untrained(model, world(), 90);
+        std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
+        Policy::Network(Weights { at: dir, step: None })
+    };
+    let none = HashSet::new();
+    let daml = ModelConfig { architecture: Architecture::named("daml"), backbone_width: 8, ..ModelConfig::default() };
+    let policy = save("daml", daml);
+    let own = EvalConfig { strips: vec![0], ..config(2, 12) };
+    let scripted = EvalConfig { control: Control::ScriptedPoses, ..own.clone() };
+    let out = scratch("outputs");
+    let (a, _) =
+        run_eval(&policy, Some(&world()), &scripted, &Layouts::Fresh(none.clone()), 1, Some(&out.join("a"))).unwrap();
+    run_eval(&policy, Some(&world()), &own, &Layouts::Fresh(none.clone()), 1, Some(&out.join("b"))).unwrap();
+    assert!(a.iter().all(|e| e.steps == 12 || e.placed));
+    let strip = |run: &str| {
+        let dir = out.join(run).join("strips");
+        let file = std::fs::read_dir(&dir).unwrap().next().expect("one strip").unwrap().path();
+        std::fs::read(file).unwrap()
+    };
+    assert_ne!(strip("a"), strip("b"), "the scripted expert, not the network's actions, moves the agent");
+
+    let transformer = save("transformer", ModelConfig { backbone_width: 8, ..ModelConfig::default() });
+    let err = run_eval(&transformer, Some(&world()), &scripted, &Layouts::Fresh(none), 1, None).unwrap_err();
+    assert!(format!("{err:#}").contains("eval.control = \"scripted_poses\""), "{err:#}");
+}

@@ -74,6 +74,7 @@ fn a_tiny_model_overfits_one_batch() {
         agent: images(2, 7),
         actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
         points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
     };
     let mut opt = Adam::new(&vs, 1e-2);
     let w = LossWeights::default();

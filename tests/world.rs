@@ -1,7 +1,9 @@
 //! The simulated world, end to end: IK accuracy, determinism, the expert, rendering and bad input.
 use nalgebra::Vector3;
+use oneshot_lab::data::trajectory::grasp_and_drop;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::{Env, WorldConfig};
+use oneshot_lab::sim::expert::{Expert, Guidance};
 use oneshot_lab::sim::expert_check::expert_check;
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::rollout::run_expert;
@@ -93,4 +95,30 @@ fn invalid_image_size_is_rejected_with_the_value() {
     let world = WorldConfig { image: ImageSize { height: 8, width: 50 }, ..WorldConfig::default() };
     let err = Env::new(Robot::Panda, &world, true).err().expect("an 8-pixel side must fail").to_string();
     assert!(err.contains("8x50"), "{err}");
+}
+
+#[test]
+fn the_scripted_expert_places_the_object_at_the_positions_it_is_given() {
+    // DAML-Auxiliary's execution, fed the true positions: where a privileged expert closed and opened its gripper.
+    let mut env = Env::new(Robot::Panda, &small_world(), false).unwrap();
+    let mut placed = 0;
+    for k in 0..6u64 {
+        let inst = Instance::sample(Task::from_id((5 * k as usize) % 16).unwrap(), 300 + k);
+        let episode = run_expert(&mut env, &inst, 100, false).unwrap();
+        let actions: Vec<[f32; 8]> =
+            episode.steps.iter().filter_map(|s| s.action.map(|a| a.0.map(|x| x as f32))).collect();
+        let eef: Vec<[f32; 3]> = episode.steps.iter().map(|s| s.observation.eef_pos.map(|x| x as f32)).collect();
+        let q = grasp_and_drop(&actions, &eef).map(f64::from);
+        let (grasp, drop) = ([q[0], q[1], q[2]], [q[3], q[4], q[5]]);
+        assert!(drop[2] > grasp[2] + 0.1, "the drop point lies above the grasp point: {q:?}");
+
+        env.reset(&inst);
+        let mut expert = Expert::guided(&env, Guidance::Given { grasp, drop });
+        for _ in 0..60 {
+            let action = expert.act(&env);
+            env.step(&action);
+        }
+        placed += env.milestones().placed as usize;
+    }
+    assert!(placed >= 5, "placed {placed} of 6 from the given positions");
 }

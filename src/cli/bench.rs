@@ -91,6 +91,7 @@ fn synthetic_batch(c: &BenchConfig, device: Device) -> DeviceBatch {
         agent: Tensor::randn([b, ta, 3, h, w], opts),
         actions: Tensor::rand([b, ta - 1, 8], opts) * 2.0 - 1.0,
         points: Tensor::rand([b, 2], opts) * 2.0 - 1.0,
+        poses: Tensor::rand([b, 6], opts),
     }
 }
 

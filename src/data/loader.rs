@@ -20,26 +20,36 @@ pub struct Batch {
     pub agent: Vec<f32>,
     pub actions: Vec<f32>,
     pub points: Vec<f32>,
+    pub poses: Vec<f32>,
 }
 
 /// A batch on a device: `context` `[B, Tc, 3, H, W]`, `agent` `[B, Ta, 3, H, W]`, `actions` `[B, Ta - 1, 8]`,
-/// `points` `[B, 2]`.
+/// `points` `[B, 2]`, `poses` `[B, 6]`.
 pub struct DeviceBatch {
     pub context: Tensor,
     pub agent: Tensor,
     pub actions: Tensor,
     pub points: Tensor,
+    pub poses: Tensor,
 }
 
 impl Batch {
     /// Stacks samples.
     pub fn from_samples(samples: Vec<Sample>) -> Batch {
-        let mut b = Batch { size: samples.len(), context: vec![], agent: vec![], actions: vec![], points: vec![] };
+        let mut b = Batch {
+            size: samples.len(),
+            context: vec![],
+            agent: vec![],
+            actions: vec![],
+            points: vec![],
+            poses: vec![],
+        };
         for s in samples {
             b.context.extend(s.context);
             b.agent.extend(s.agent);
             b.actions.extend(s.actions);
             b.points.extend(s.point);
+            b.poses.extend(s.poses);
         }
         b
     }
@@ -54,6 +64,7 @@ impl Batch {
             agent: t(&self.agent, &[b, ta, 3, h, w]),
             actions: t(&self.actions, &[b, ta - 1, 8]),
             points: t(&self.points, &[b, 2]),
+            poses: t(&self.poses, &[b, 6]),
         }
     }
 }

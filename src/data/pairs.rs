@@ -229,7 +229,7 @@ impl PairDataset {
             .collect();
         let [col, row] = agent.eef_pixel[start + model.agent_frames - 1];
         let point = [2.0 * col / w as f32 - 1.0, 2.0 * row / h as f32 - 1.0];
-        Ok(Sample { task, context, agent: frames, actions, point })
+        Ok(Sample { task, context, agent: frames, actions, point, poses: agent.grasp_and_drop() })
     }
 }
 
@@ -244,6 +244,8 @@ pub struct Sample {
     pub actions: Vec<f32>,
     /// End-effector pixel at the window's last frame, on the [-1, 1] grid (x = column, y = row).
     pub point: [f32; 2],
+    /// The agent trajectory's grasp and drop positions (see [`Trajectory::grasp_and_drop`]).
+    pub poses: [f32; 6],
 }
 
 /// Demonstrator frames to show for a video of `len` frames (training and evaluation alike, as the authors'

@@ -52,6 +52,19 @@ pub struct Trajectory {
     pub actions: Vec<[f32; 8]>,
 }
 
+/// The end-effector position where the gripper first closes, then where it last is open (after the release),
+/// in metres, from a trajectory's actions and end-effector positions: the targets of DAML's auxiliary head (the
+/// authors' `aux_pose`). A trajectory that never closes the gripper has both at its last open step.
+pub fn grasp_and_drop(actions: &[[f32; 8]], eef_pos: &[[f32; 3]]) -> [f32; 6] {
+    let closed = |t: &usize| actions[*t][7] > 0.0;
+    let grasp = (0..actions.len()).find(closed);
+    let drop = (0..actions.len()).rev().find(|t| !closed(t));
+    let last = eef_pos.len().saturating_sub(1);
+    let at = |t: Option<usize>| eef_pos[t.unwrap_or(last).min(last)];
+    let (g, d) = (at(grasp.or(drop)), at(drop));
+    [g[0], g[1], g[2], d[0], d[1], d[2]]
+}
+
 fn f32s<const N: usize>(v: [f64; N]) -> [f32; N] {
     v.map(|x| x as f32)
 }
@@ -65,6 +78,11 @@ impl Trajectory {
     /// Whether the trajectory has no steps.
     pub fn is_empty(&self) -> bool {
         self.frames_jpeg.is_empty()
+    }
+
+    /// The targets of DAML's auxiliary head: see [`grasp_and_drop`].
+    pub fn grasp_and_drop(&self) -> [f32; 6] {
+        grasp_and_drop(&self.actions, &self.eef_pos)
     }
 
     /// Encodes a rendered expert episode; every step must carry a frame.

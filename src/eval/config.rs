@@ -21,6 +21,26 @@ pub enum ActionChoice {
     Mode,
 }
 
+/// Who moves the agent during an evaluation of a network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Control {
+    /// The network's actions, step by step.
+    #[default]
+    Policy,
+    /// The scripted grasp-and-place, fed the grasp and drop positions the network predicts from the
+    /// demonstration and the agent's first frame (the paper's DAML-Auxiliary; needs an architecture with a pose
+    /// head).
+    ScriptedPoses,
+}
+
+impl Control {
+    /// Whether this is the default (left out of stage keys).
+    pub fn is_policy(&self) -> bool {
+        *self == Control::Policy
+    }
+}
+
 /// How to evaluate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -59,6 +79,10 @@ pub struct EvalConfig {
     /// Training steps whose checkpoints are evaluated beside the final weights (success against training steps;
     /// each a multiple of `train.checkpoint_interval`). Read by experiment files.
     pub checkpoints: Vec<u64>,
+    /// Who moves the agent: the network's actions, or the scripted expert executing its predicted positions.
+    /// Left out of stage keys when `policy`.
+    #[serde(skip_serializing_if = "Control::is_policy")]
+    pub control: Control,
 }
 
 impl Default for EvalConfig {
@@ -79,6 +103,7 @@ impl Default for EvalConfig {
             fixed_rotation: true,
             binarize_gripper: true,
             checkpoints: Vec::new(),
+            control: Control::Policy,
         }
     }
 }
@@ -116,6 +141,13 @@ impl EvalConfig {
                  action at a later window position",
                 self.history_frames,
                 model.agent_frames - 1
+            );
+        }
+        if self.control == Control::ScriptedPoses && !model.architecture.registration().is_some_and(|r| r.pose_head) {
+            bail!(
+                "eval.control = \"scripted_poses\" needs an architecture with a pose head (daml); model.architecture \
+                 = {:?} has none",
+                model.architecture.0
             );
         }
         if self.fixed_rotation && world.agent_yaw != GripperYaw::Fixed {
@@ -162,5 +194,19 @@ mod tests {
         let turning = WorldConfig { agent_yaw: GripperYaw::ObjectYaw, ..WorldConfig::default() };
         let err = EvalConfig::default().check_policy(&model, &turning).unwrap_err().to_string();
         assert!(err.contains("eval.fixed_rotation"), "{err}");
+    }
+
+    #[test]
+    fn scripted_control_needs_a_pose_head_and_stays_out_of_default_keys() {
+        let scripted = EvalConfig { control: Control::ScriptedPoses, ..EvalConfig::default() };
+        let world = WorldConfig::default();
+        let err = scripted.check_policy(&ModelConfig::default(), &world).unwrap_err().to_string();
+        assert!(err.contains("eval.control = \"scripted_poses\"") && err.contains("transformer"), "{err}");
+        let daml =
+            ModelConfig { architecture: crate::model::config::Architecture::named("daml"), ..Default::default() };
+        assert!(scripted.check_policy(&daml, &world).is_ok());
+        let default = serde_json::to_value(EvalConfig::default()).unwrap();
+        assert!(default.get("control").is_none(), "the default is left out of stage keys");
+        assert_eq!(serde_json::to_value(&scripted).unwrap()["control"], "scripted_poses");
     }
 }

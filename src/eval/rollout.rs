@@ -1,6 +1,6 @@
 //! Lockstep rollouts: simulation workers step their scenes while the network (if any) runs batched, with the
 //! authors' evaluation protocol applied to the network's actions.
-use super::config::{ActionChoice, EvalConfig};
+use super::config::{ActionChoice, Control, EvalConfig};
 use super::history::AgentHistory;
 use super::policy::Policy;
 use super::workers::{EpisodeSpec, WorkerPool, WorkerSpec};
@@ -12,6 +12,7 @@ use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
 use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
 use crate::sim::env::WorldConfig;
+use crate::sim::expert::Guidance;
 use crate::train::TrainedPolicy;
 use anyhow::{Context, Result, bail};
 use rand::SeedableRng;
@@ -123,6 +124,10 @@ fn run_wave(
             inputs.push(NetworkInputs { context, history });
         }
     }
+    let scripted = matches!(policy, Policy::Network(_)) && config.control == Control::ScriptedPoses;
+    if let (Policy::Network(p), true) = (policy, scripted) {
+        pool.guide(&predicted_guidance(p, &inputs, world, device)?)?;
+    }
     let strip_wanted: Vec<bool> = wave.iter().map(|e| config.strips.contains(&e.index)).collect();
     let mut strip_frames: Vec<Vec<Vec<u8>>> = started
         .iter()
@@ -154,7 +159,7 @@ fn run_wave(
         }
         let mut commands: Vec<Option<Option<Action>>> = vec![None; n];
         match policy {
-            Policy::Network(p) => {
+            Policy::Network(p) if !scripted => {
                 let sampled = network_actions(p, &active, &inputs, world, config.action, device)?;
                 for (&j, a) in active.iter().zip(sampled.chunks(ACTION_DIM)) {
                     commands[j] = Some(Some(command(a, t, config, started[j].rest_orientation)));
@@ -176,7 +181,7 @@ fn run_wave(
             hit(s.milestones.picked, &mut r.first_picked);
             hit(s.milestones.placed, &mut r.first_placed);
             (r.reached, r.picked, r.placed) = (s.milestones.reached, s.milestones.picked, s.milestones.placed);
-            if let Policy::Network(p) = policy {
+            if let (Policy::Network(p), false) = (policy, scripted) {
                 inputs[j].history.push(network_frame(&s.frame, world, p.summary.jpeg_quality)?);
             }
             if strip_wanted[j] {
@@ -192,6 +197,28 @@ fn run_wave(
         }
     }
     Ok(results)
+}
+
+/// The grasp and drop positions the network predicts for each episode of a wave from its context and first
+/// agent frame, as guidance for the scripted expert.
+fn predicted_guidance(
+    p: &TrainedPolicy,
+    inputs: &[NetworkInputs],
+    world: &WorldConfig,
+    device: Device,
+) -> Result<Vec<Guidance>> {
+    let (h, w) = (world.image.height as i64, world.image.width as i64);
+    let b = inputs.len() as i64;
+    let tc = p.policy.config().context_len() as i64;
+    let ctx: Vec<f32> = inputs.iter().flat_map(|i| i.context.iter().copied()).collect();
+    let first: Vec<f32> =
+        inputs.iter().flat_map(|i| i.history.frames().next().into_iter().flatten().copied()).collect();
+    let ctx = Tensor::from_slice(&ctx).view([b, tc, 3, h, w]).to_device(device);
+    let agent = Tensor::from_slice(&first).view([b, 1, 3, h, w]).to_device(device);
+    let poses = tch::no_grad(|| p.policy.predict_poses(&ctx, &agent))
+        .context("eval.control = \"scripted_poses\": the architecture predicts no positions")?;
+    let poses: Vec<f64> = Vec::try_from(poses.to_device(Device::Cpu).to_kind(tch::Kind::Double).flatten(0, -1))?;
+    Ok(poses.chunks(6).map(|q| Guidance::Given { grasp: [q[0], q[1], q[2]], drop: [q[3], q[4], q[5]] }).collect())
 }
 
 /// One batched forward pass: a normalised action (8 values) for each active episode, read at the last position of

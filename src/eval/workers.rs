@@ -6,7 +6,7 @@ use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
 use crate::sim::camera::Camera;
 use crate::sim::env::{Env, WorldConfig};
-use crate::sim::expert::Expert;
+use crate::sim::expert::{Expert, Guidance};
 use crate::sim::milestones::Milestones;
 use crate::sim::robot::Robot;
 use crate::sim::rollout::run_expert;
@@ -52,11 +52,15 @@ enum Command {
     Start(Vec<EpisodeSpec>),
     /// Per slot: `None` to leave it alone, `Some(action)` to step it (`Some(None)`: the local chooser decides).
     Step(Vec<Option<Option<Action>>>),
+    /// Per slot: hand the episode to a scripted expert executing these positions.
+    Guide(Vec<Guidance>),
 }
 
 enum Reply {
     Started(Result<Vec<Started>>),
     Stepped(Result<Vec<Stepped>>),
+    /// How many episodes were handed over.
+    Guided(usize),
 }
 
 /// A pool of simulation threads.
@@ -120,14 +124,14 @@ impl Worker {
                 out.push(Stepped { frame: Vec::new(), milestones: slot.env.milestones() });
                 continue;
             };
-            let action = match (given, self.spec.chooser) {
-                (Some(a), _) => a,
-                (None, Policy::Expert) => slot.expert.as_mut().expect("expert set at start").act(&slot.env),
-                (None, Policy::Random) => {
+            let action = match (given, slot.expert.as_mut(), self.spec.chooser) {
+                (Some(a), _, _) => a,
+                (None, Some(expert), _) => expert.act(&slot.env),
+                (None, None, Policy::Random) => {
                     let n: [f32; ACTION_DIM] = std::array::from_fn(|_| slot.rng.random_range(-1.0..=1.0));
                     Action::from_normalized(&n)
                 }
-                (None, Policy::Network(())) => bail!("the network sent no action"),
+                (None, None, _) => bail!("the network sent no action and no scripted expert runs this episode"),
             };
             slot.env.step(&action);
             out.push(Stepped { frame: slot.env.render_with(camera)?, milestones: slot.env.milestones() });
@@ -170,6 +174,13 @@ impl WorkerPool {
                     let reply = match command {
                         Command::Start(specs) => Reply::Started(worker.start(specs)),
                         Command::Step(actions) => Reply::Stepped(worker.step(actions)),
+                        Command::Guide(guides) => {
+                            let n = guides.len();
+                            for (slot, g) in worker.slots.iter_mut().zip(guides) {
+                                slot.expert = Some(Expert::guided(&slot.env, g));
+                            }
+                            Reply::Guided(n)
+                        }
                     };
                     if replies.send(reply).is_err() {
                         return;
@@ -195,7 +206,7 @@ impl WorkerPool {
     pub fn start(&self, specs: &[EpisodeSpec]) -> Result<Vec<Started>> {
         self.round_trip(specs, Command::Start, |reply| match reply {
             Reply::Started(r) => Some(r),
-            Reply::Stepped(_) => None,
+            _ => None,
         })
     }
 
@@ -203,8 +214,17 @@ impl WorkerPool {
     pub fn step(&self, commands: &[Option<Option<Action>>]) -> Result<Vec<Stepped>> {
         self.round_trip(commands, Command::Step, |reply| match reply {
             Reply::Stepped(r) => Some(r),
-            Reply::Started(_) => None,
+            _ => None,
         })
+    }
+
+    /// Hands each started episode (same order as `start`) to a scripted expert executing its positions.
+    pub fn guide(&self, guides: &[Guidance]) -> Result<()> {
+        self.round_trip(guides, Command::Guide, |reply| match reply {
+            Reply::Guided(n) => Some(Ok(vec![(); n])),
+            _ => None,
+        })
+        .map(|_: Vec<()>| ())
     }
 
     /// Sends item `j` of `items` to worker `j % len` (wrapped by `command`), then gathers the answers in `items`

@@ -50,7 +50,8 @@ pub struct ModelConfig {
     /// Residual stages of the ResNet-18 kept (4: the whole trunk, the paper's; 3 ends at stride 16, with a
     /// feature map twice as fine, for small frames).
     pub backbone_stages: usize,
-    /// Optional safetensors file of torchvision ResNet-18 weights (names like `layer1.0.conv1.weight`).
+    /// Optional safetensors file of torchvision ResNet-18 weights (names like `layer1.0.conv1.weight`; for DAML,
+    /// VGG-16's `features.0.*` and `features.2.*`).
     pub pretrained_backbone: Option<String>,
     /// Attention layers over context + agent frames.
     pub attention_layers: usize,

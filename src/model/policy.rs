@@ -26,6 +26,9 @@ pub struct Losses {
     pub inverse: Tensor,
     /// NLL of the end-effector pixel at the end of the window.
     pub point: Tensor,
+    /// Squared error of the predicted grasp and drop positions (architectures with a pose head; added unweighted,
+    /// as the authors' DAML training does).
+    pub pose: Tensor,
 }
 
 /// A policy architecture: how it is queried for actions and how it is trained.
@@ -40,6 +43,12 @@ pub trait PolicyNet: std::fmt::Debug + Send {
     /// The losses of `batch`; by default the NLL of every head [`Self::forward_t`] returns.
     fn losses(&self, batch: &DeviceBatch, spec: MixtureSpec, train: bool) -> Losses {
         head_losses(&self.forward_t(&batch.context, &batch.agent, train), batch, spec)
+    }
+
+    /// The grasp and drop positions `[B, 6]` (metres) predicted from the context and each episode's first agent
+    /// frame `agent[:, 0]`; none for architectures without a pose head.
+    fn predict_poses(&self, _context: &Tensor, _agent: &Tensor) -> Option<Tensor> {
+        None
     }
 }
 
@@ -56,6 +65,7 @@ pub fn head_losses(out: &PolicyOutput, batch: &DeviceBatch, spec: MixtureSpec) -
         bc: mixture_nll(&acted, &batch.actions, spec),
         inverse: out.inverse.as_ref().map_or_else(zero, |p| mixture_nll(p, &batch.actions, spec)),
         point: out.point.as_ref().map_or_else(zero, |p| point_nll(p, &batch.points)),
+        pose: zero(),
     }
 }
 
@@ -93,6 +103,11 @@ impl Policy {
     /// See [`PolicyNet::forward_t`].
     pub fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
         self.net.forward_t(context, agent, train)
+    }
+
+    /// See [`PolicyNet::predict_poses`].
+    pub fn predict_poses(&self, context: &Tensor, agent: &Tensor) -> Option<Tensor> {
+        self.net.predict_poses(context, agent)
     }
 
     /// See [`PolicyNet::losses`].

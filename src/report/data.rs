@@ -15,6 +15,8 @@ pub struct ResultRow {
     pub variant: Option<String>,
     pub context: Option<String>,
     pub architecture: Option<String>,
+    /// Who moved the agent in the evaluation (`scripted_poses` for DAML-Auxiliary; none for the network).
+    pub control: Option<String>,
     /// Seeds with finished evaluations, and seeds in the grid.
     pub seeds_done: usize,
     pub seeds_total: usize,
@@ -50,6 +52,7 @@ pub fn rows(cells: &[CellRecord]) -> Vec<ResultRow> {
                     variant: c.variant.clone(),
                     context: c.context.clone(),
                     architecture: c.architecture.clone(),
+                    control: c.control.clone(),
                     seeds_done: 0,
                     seeds_total: 0,
                     pooled: None,

@@ -154,6 +154,7 @@ mod tests {
             variant: Some(variant.into()),
             context: Some(context.into()),
             architecture: Some(architecture.into()),
+            control: None,
             seeds_done: 0,
             seeds_total: 1,
             pooled: None,

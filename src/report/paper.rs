@@ -5,6 +5,10 @@ use super::data::ResultRow;
 pub const OURS_TABLE1: [(f64, f64); 3] = [(99.4, 1.2), (92.5, 4.1), (88.8, 5.0)];
 /// Table 1, Contextual-LSTM.
 pub const LSTM_TABLE1: [(f64, f64); 3] = [(38.8, 7.6), (26.3, 6.9), (23.8, 6.7)];
+/// Table 1, DAML.
+pub const DAML_TABLE1: [(f64, f64); 3] = [(36.9, 7.6), (10.6, 4.8), (6.9, 4.0)];
+/// Table 1, DAML-Auxiliary.
+pub const DAML_AUXILIARY_TABLE1: [(f64, f64); 3] = [(47.8, 7.4), (17.8, 5.6), (13.3, 5.0)];
 /// Final-frame-only context at N = 1600: overall success in %.
 pub const FINAL_FRAME_PLACED: (f64, f64) = (61.0, 9.7);
 
@@ -12,6 +16,10 @@ pub const FINAL_FRAME_PLACED: (f64, f64) = (61.0, 9.7);
 pub fn paper_stages(row: &ResultRow) -> Option<[Option<(f64, f64)>; 3]> {
     if row.policy != "model" || row.size != Some(1600) {
         return None;
+    }
+    if row.architecture.as_deref() == Some("daml") {
+        let scripted = row.control.as_deref() == Some("scripted_poses");
+        return Some(if scripted { DAML_AUXILIARY_TABLE1 } else { DAML_TABLE1 }.map(Some));
     }
     match (row.architecture.as_deref(), row.variant.as_deref(), row.context.as_deref()) {
         (Some("contextual_lstm"), _, _) => Some(LSTM_TABLE1.map(Some)),
@@ -24,4 +32,35 @@ pub fn paper_stages(row: &ResultRow) -> Option<[Option<(f64, f64)>; 3]> {
 /// The paper's placed % for a row, if reported.
 pub fn paper_placed(row: &ResultRow) -> Option<f64> {
     paper_stages(row).and_then(|s| s[2]).map(|(v, _)| v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(architecture: &str, control: Option<&str>, size: usize) -> ResultRow {
+        ResultRow {
+            label: format!("x @ {size}"),
+            policy: "model".into(),
+            size: Some(size),
+            variant: Some("x".into()),
+            context: Some("spread".into()),
+            architecture: Some(architecture.into()),
+            control: control.map(String::from),
+            seeds_done: 0,
+            seeds_total: 1,
+            pooled: None,
+            mean: None,
+            train_keys: Vec::new(),
+            eval_keys: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn each_table_1_row_is_matched_by_architecture_and_control() {
+        assert_eq!(paper_placed(&row("daml", None, 1600)), Some(6.9));
+        assert_eq!(paper_placed(&row("daml", Some("scripted_poses"), 1600)), Some(13.3));
+        assert_eq!(paper_placed(&row("contextual_lstm", None, 1600)), Some(23.8));
+        assert_eq!(paper_placed(&row("daml", None, 160)), None, "the paper reports N = 1600 only");
+    }
 }

@@ -51,8 +51,20 @@ fn release_distance(robot: Robot) -> f64 {
     }
 }
 
+/// Where the expert takes the grasp point and the drop point from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Guidance {
+    /// The simulator's object position and the target quadrant (privileged state).
+    Privileged,
+    /// Given positions (metres): where to close the gripper and where to open it, as DAML-Auxiliary executes its
+    /// network's predictions (the paper's Sec. 5). Nothing tells this expert that the object slipped, so it never
+    /// starts over; it cannot see the object's yaw either, so an `object_yaw` rule holds the rest yaw.
+    Given { grasp: [f64; 3], drop: [f64; 3] },
+}
+
 /// The expert's state for one episode.
 pub struct Expert {
+    guidance: Guidance,
     /// Yaw the gripper starts at (the robot's rest yaw) and the yaw it turns to.
     start_yaw: f64,
     yaw: f64,
@@ -70,23 +82,67 @@ pub struct Expert {
 }
 
 impl Expert {
-    /// A fresh expert for the episode `env` was just reset to.
+    /// A fresh expert for the episode `env` was just reset to, with privileged state.
     pub fn new(env: &Env) -> Expert {
+        Expert::guided(env, Guidance::Privileged)
+    }
+
+    /// A fresh expert for the episode `env` was just reset to, taking its positions from `guidance`.
+    pub fn guided(env: &Env, guidance: Guidance) -> Expert {
         let task = env.instance().expect("expert needs a reset environment").task;
         let obj = task.object_kind();
-        let p = env.object_pos(task.object);
+        let p = match guidance {
+            Guidance::Privileged => env.object_pos(task.object),
+            Guidance::Given { grasp, .. } => grasp,
+        };
         let start_yaw = env.rest_yaw();
-        let yaw = match env.gripper_yaw_rule() {
-            GripperYaw::Fixed => start_yaw,
-            GripperYaw::ObjectYaw => grasp_yaw(obj, env.object_yaw(task.object)),
-            GripperYaw::Heading => {
+        let yaw = match (env.gripper_yaw_rule(), guidance) {
+            (GripperYaw::Fixed, _) | (GripperYaw::ObjectYaw, Guidance::Given { .. }) => start_yaw,
+            (GripperYaw::ObjectYaw, Guidance::Privileged) => grasp_yaw(obj, env.object_yaw(task.object)),
+            (GripperYaw::Heading, _) => {
                 let (ee, _) = env.eef_pose();
                 let turn = if obj == Object::Cereal { CEREAL_TURN } else { 0.0 };
                 wrap_angle(start_yaw + (p[1] - ee[1]).atan2(p[0] - ee[0]) + turn)
             }
         };
         let close_on_arrival = env.config().close_on_arrival;
-        Expert { start_yaw, yaw, t: 0, descent: None, closed_at: None, close_on_arrival, grasp: None, released: false }
+        Expert {
+            guidance,
+            start_yaw,
+            yaw,
+            t: 0,
+            descent: None,
+            closed_at: None,
+            close_on_arrival,
+            grasp: None,
+            released: false,
+        }
+    }
+
+    /// Where the gripper closes: above the object's centre by its grasp offset (guided: the given point), kept
+    /// off the bin floor.
+    fn grasp_point(&self, env: &Env) -> Vector3<f64> {
+        let p = match self.guidance {
+            Guidance::Privileged => {
+                let task = env.instance().expect("expert needs a reset environment").task;
+                let obj = Vector3::from(env.object_pos(task.object));
+                obj + Vector3::new(0.0, 0.0, grasp_offset(task.object_kind()))
+            }
+            Guidance::Given { grasp, .. } => Vector3::from(grasp),
+        };
+        Vector3::new(p[0], p[1], p[2].max(MIN_GRASP_Z))
+    }
+
+    /// Where the gripper carries the object and opens: above the target quadrant's centre (guided: the given
+    /// point).
+    fn drop_point(&self, env: &Env) -> Vector3<f64> {
+        match self.guidance {
+            Guidance::Privileged => {
+                let c = env.instance().expect("expert needs a reset environment").task.target_centre();
+                Vector3::new(c[0], c[1], CARRY_Z)
+            }
+            Guidance::Given { drop, .. } => Vector3::from(drop),
+        }
     }
 
     /// Whether the expert has opened the gripper above the target and is only holding still.
@@ -101,14 +157,15 @@ impl Expert {
         let (ee, _) = env.eef_pose();
         let t = self.t;
         self.t += 1;
-        let hover = obj + Vector3::new(0.0, 0.0, HOVER);
-        let carry = {
-            let c = task.target_centre();
-            Vector3::new(c[0], c[1], CARRY_Z)
+        let grasp_point = self.grasp_point(env);
+        let hover = match self.guidance {
+            Guidance::Privileged => obj + Vector3::new(0.0, 0.0, HOVER),
+            Guidance::Given { .. } => grasp_point + Vector3::new(0.0, 0.0, HOVER),
         };
+        let carry = self.drop_point(env);
+        let privileged = self.guidance == Guidance::Privileged;
         if let (Some(s), None) = (self.descent, self.closed_at) {
-            let z = (obj[2] + grasp_offset(task.object_kind())).max(MIN_GRASP_Z);
-            let arrived = self.close_on_arrival && (Vector3::new(obj[0], obj[1], z) - ee).norm() < ARRIVAL_TOLERANCE;
+            let arrived = self.close_on_arrival && (grasp_point - ee).norm() < ARRIVAL_TOLERANCE;
             if arrived || t >= s + CLOSE_AFTER {
                 self.closed_at = Some(t);
             }
@@ -120,16 +177,13 @@ impl Expert {
                 }
                 (hover, -1.0)
             }
-            (Some(_), None) => {
-                let z = (obj[2] + grasp_offset(task.object_kind())).max(MIN_GRASP_Z);
-                (Vector3::new(obj[0], obj[1], z), -1.0)
-            }
+            (Some(_), None) => (grasp_point, -1.0),
             (_, Some(c)) if t < c + RISE_AFTER => (*self.grasp.get_or_insert(ee), 1.0),
             (_, Some(c)) if t < c + CARRY_AFTER => {
                 let g = self.grasp.unwrap_or(ee);
                 (Vector3::new(g[0], g[1], g[2] + HOVER), 1.0)
             }
-            _ if !self.released && ee[2] - obj[2] > LOST_BELOW => {
+            _ if privileged && !self.released && ee[2] - obj[2] > LOST_BELOW => {
                 // The grasp failed or the object slipped out: start over from above it.
                 (self.t, self.descent, self.closed_at, self.grasp) = (1, None, None, None);
                 (hover, -1.0)

@@ -40,7 +40,8 @@ pub fn load(vs: &mut nn::VarStore, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Copies matching `backbone.*` parameters from a torchvision-named ResNet-18 safetensors file.
+/// Copies matching `backbone.*` parameters from a torchvision-named safetensors file: ResNet-18's, or VGG-16's
+/// first block for DAML.
 pub fn load_backbone(vs: &mut nn::VarStore, path: &Path) -> Result<usize> {
     let stored =
         Tensor::read_safetensors(path).with_context(|| format!("reading pretrained weights {}", path.display()))?;
@@ -59,7 +60,11 @@ pub fn load_backbone(vs: &mut nn::VarStore, path: &Path) -> Result<usize> {
         Ok(())
     })?;
     if copied == 0 {
-        bail!("{} holds no ResNet-18 parameter (expected names like `layer1.0.conv1.weight`)", path.display());
+        bail!(
+            "{} holds no parameter of this backbone (expected torchvision names like `layer1.0.conv1.weight` for \
+             ResNet-18, `features.0.weight` for DAML's VGG-16 block)",
+            path.display()
+        );
     }
     Ok(copied)
 }

@@ -18,7 +18,7 @@ pub struct LossWeights {
 impl LossWeights {
     /// The weighted sum of `losses` that is optimised.
     pub fn total(&self, losses: &Losses) -> Tensor {
-        &losses.bc * self.bc + &losses.inverse * self.inverse + &losses.point * self.point
+        &losses.bc * self.bc + &losses.inverse * self.inverse + &losses.point * self.point + &losses.pose
     }
 }
 

@@ -17,6 +17,7 @@ pub const CONV: Registration = Registration {
     name: "conv",
     description: "architecture ablation: small 4-layer 32-channel conv net + spatial softmax + MLPs, no attention",
     auxiliary_heads: true,
+    pose_head: false,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, false)),
 };
 
@@ -25,6 +26,7 @@ pub const CONV_LSTM: Registration = Registration {
     name: "conv_lstm",
     description: "architecture ablation: the small conv net with an LSTM over context and agent frames",
     auxiliary_heads: true,
+    pose_head: false,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, true)),
 };
 
@@ -33,6 +35,7 @@ pub const RESNET: Registration = Registration {
     name: "resnet",
     description: "architecture ablation: ResNet-18 + spatial softmax + MLPs, no attention",
     auxiliary_heads: true,
+    pose_head: false,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, false)),
 };
 
@@ -41,6 +44,7 @@ pub const RESNET_LSTM: Registration = Registration {
     name: "resnet_lstm",
     description: "architecture ablation: ResNet-18 with an LSTM over context and agent frames",
     auxiliary_heads: true,
+    pose_head: false,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, true)),
 };
 

@@ -17,6 +17,7 @@ pub const CONTEXTUAL_LSTM: Registration = Registration {
     name: "contextual_lstm",
     description: "the Contextual-LSTM baseline: encoder and decoder LSTMs over frame embeddings",
     auxiliary_heads: true,
+    pose_head: false,
     build: |vs, config| Box::new(ContextualLstm::new(vs, config)),
 };
 

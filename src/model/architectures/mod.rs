@@ -2,6 +2,7 @@
 //! `model.architecture` names an entry; building, training and evaluation reach the network only through
 //! [`super::policy::PolicyNet`].
 pub mod ablated;
+pub mod daml;
 pub mod lstm;
 pub mod transformer;
 
@@ -16,6 +17,8 @@ pub struct Registration {
     pub description: &'static str,
     /// Whether it has the inverse-dynamics and point heads (their loss weights must be zero otherwise).
     pub auxiliary_heads: bool,
+    /// Whether it predicts the grasp and drop positions (what `eval.control = "scripted_poses"` executes).
+    pub pose_head: bool,
     pub build: fn(&nn::Path, &ModelConfig) -> Box<dyn PolicyNet>,
 }
 
@@ -28,6 +31,7 @@ pub static ARCHITECTURES: &[Registration] = &[
     ablated::CONV_LSTM,
     ablated::RESNET,
     ablated::RESNET_LSTM,
+    daml::DAML,
 ];
 
 /// The entry named `name`.

@@ -16,6 +16,7 @@ pub const TRANSFORMER: Registration = Registration {
     name: "transformer",
     description: "non-local attention over all tokens of all frames (the paper's model)",
     auxiliary_heads: true,
+    pose_head: false,
     build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::Attention)),
 };
 
@@ -24,6 +25,7 @@ pub const TEMPORAL_CONV: Registration = Registration {
     name: "temporal_conv",
     description: "the no-attention ablation: causal bottleneck blocks around a 5x5x5 spatio-temporal convolution",
     auxiliary_heads: true,
+    pose_head: false,
     build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::TemporalConv)),
 };
 

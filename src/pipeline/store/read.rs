@@ -29,6 +29,8 @@ pub struct CellRecord {
     pub context: Option<String>,
     pub architecture: Option<String>,
     pub train_steps: Option<u64>,
+    /// Who moved the agent in the evaluation (`scripted_poses`; none for the network's own actions).
+    pub control: Option<String>,
 }
 
 /// One point of a BC loss curve.
@@ -132,7 +134,7 @@ impl Store {
         let mut stmt = self.conn.prepare(
             "SELECT c.cell, c.policy, c.size, c.variant, c.seed, c.train_key, c.eval_key, s.status,
                     json_extract(t.inputs, '$.model.context'), json_extract(t.inputs, '$.model.architecture'),
-                    json_extract(t.inputs, '$.train.steps')
+                    json_extract(t.inputs, '$.train.steps'), json_extract(s.inputs, '$.eval.control')
              FROM cells c LEFT JOIN stages s ON s.key = c.eval_key LEFT JOIN stages t ON t.key = c.train_key
              WHERE c.experiment = ?1 ORDER BY c.rowid",
         )?;
@@ -150,6 +152,7 @@ impl Store {
                     context: r.get(8)?,
                     architecture: r.get(9)?,
                     train_steps: r.get::<_, Option<i64>>(10)?.map(|v| v as u64),
+                    control: r.get(11)?,
                 };
                 Ok((record, r.get::<_, Option<String>>(7)?))
             })?

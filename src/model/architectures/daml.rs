@@ -1,0 +1,248 @@
+//! DAML (Yu et al., 2018), the paper's meta-learning baseline (Sec. 5, Table 1), as the authors' `DAMLNetwork` and
+//! `train_daml_baseline.py` build it: a per-frame conv net (VGG-16's first block, then three 3x3 convolutions of
+//! strides 2, 2, 1) and spatial softmax; an action MLP of three 50-wide layers into the shared logistic-mixture head;
+//! an auxiliary head regressing the agent's grasp and drop positions from its first frame; and a learned loss, an
+//! MLP with LayerNorm over the context frames' features. Per task, the conv net and action MLP take one gradient
+//! step (lr 0.1) on the learned loss of the demonstrator's video; the adapted network then acts, frame by frame, and
+//! is trained through that step (second order) on behaviour cloning plus the grasp-and-drop regression.
+use super::Registration;
+use crate::data::loader::DeviceBatch;
+use crate::model::config::ModelConfig;
+use crate::model::heads::spatial_softmax;
+use crate::model::mixture::{MixtureHead, MixtureParams, MixtureSpec, mixture_nll};
+use crate::model::policy::{Losses, PolicyNet, PolicyOutput};
+use tch::nn::{self, Module};
+use tch::{Kind, Reduction, Tensor};
+
+/// The DAML baseline.
+pub const DAML: Registration = Registration {
+    name: "daml",
+    description: "the DAML baseline: MAML with a learned inner loss over the demonstration, and a grasp/drop head",
+    auxiliary_heads: false,
+    pose_head: true,
+    build: |vs, config| Box::new(Daml::new(vs, config)),
+};
+
+/// Learning rate of the inner step (the authors' `maml_lr`).
+pub const INNER_LR: f64 = 0.1;
+/// Width of the action MLP's layers.
+const ACTION_HIDDEN: i64 = 50;
+/// Hidden width of the grasp-and-drop head.
+const POSE_HIDDEN: i64 = 32;
+/// Grasp position then drop position, (x, y, z) each, in metres.
+pub const POSE_DIM: i64 = 6;
+
+/// One convolution of the adapted trunk: 3x3, padding 1.
+#[derive(Debug, Clone, Copy)]
+struct ConvSpec {
+    input: i64,
+    output: i64,
+    stride: i64,
+    /// A 2x2 max-pool follows (the end of VGG-16's first block).
+    pool: bool,
+}
+
+/// The DAML network. Parameters that the inner step adapts (the trunk and the action MLP) are applied
+/// functionally, so that a forward pass can run with adapted copies of them.
+#[derive(Debug)]
+pub struct Daml {
+    convs: Vec<(ConvSpec, nn::Conv2D)>,
+    action_mlp: Vec<nn::Linear>,
+    head: MixtureHead,
+    pose: [nn::Linear; 2],
+    learned_loss: LearnedLoss,
+    channels_last: bool,
+}
+
+/// The learned inner loss: Linear, ReLU, LayerNorm, Linear, ReLU, LayerNorm, Linear to a scalar.
+#[derive(Debug)]
+struct LearnedLoss {
+    first: nn::Linear,
+    norm1: nn::LayerNorm,
+    second: nn::Linear,
+    norm2: nn::LayerNorm,
+    out: nn::Linear,
+}
+
+impl Module for LearnedLoss {
+    fn forward(&self, x: &Tensor) -> Tensor {
+        let y = self.norm1.forward(&self.first.forward(x).relu());
+        let y = self.norm2.forward(&self.second.forward(&y).relu());
+        self.out.forward(&y)
+    }
+}
+
+impl Daml {
+    /// Builds the network under `vs`: the first block's channels are `model.backbone_width` (VGG-16's 64), the
+    /// last two convolutions' too.
+    pub fn new(vs: &nn::Path, config: &ModelConfig) -> Daml {
+        let w = config.backbone_width;
+        let specs = [
+            ("backbone/features/0", ConvSpec { input: 3, output: w, stride: 1, pool: false }),
+            ("backbone/features/2", ConvSpec { input: w, output: w, stride: 1, pool: true }),
+            ("conv3", ConvSpec { input: w, output: w, stride: 2, pool: false }),
+            ("conv4", ConvSpec { input: w, output: w, stride: 2, pool: false }),
+            ("conv5", ConvSpec { input: w, output: w, stride: 1, pool: false }),
+        ];
+        let convs = specs
+            .iter()
+            .map(|&(name, s)| {
+                let mut parts = name.split('/');
+                let first = vs / parts.next().expect("a name has a part");
+                let path = parts.fold(first, |p, part| &p / part);
+                let c = nn::ConvConfig { stride: s.stride, padding: 1, ..Default::default() };
+                (s, nn::conv2d(path, s.input, s.output, 3, c))
+            })
+            .collect();
+        let features = 2 * w;
+        let mlp = vs / "action_mlp";
+        let action_mlp = [(features, ACTION_HIDDEN), (ACTION_HIDDEN, ACTION_HIDDEN), (ACTION_HIDDEN, ACTION_HIDDEN)]
+            .iter()
+            .enumerate()
+            .map(|(i, &(a, b))| nn::linear(&mlp / i.to_string(), a, b, Default::default()))
+            .collect();
+        let pose = vs / "pose";
+        let loss = vs / "learned_loss";
+        let (wide, narrow) =
+            (config.context_len() as i64 * (ACTION_HIDDEN + features), ACTION_HIDDEN * config.context_len() as i64);
+        Daml {
+            convs,
+            action_mlp,
+            head: MixtureHead::new(&(vs / "action_head"), ACTION_HIDDEN, MixtureSpec::for_model(config)),
+            pose: [
+                nn::linear(&pose / "0", features, POSE_HIDDEN, Default::default()),
+                nn::linear(&pose / "1", POSE_HIDDEN, POSE_DIM, Default::default()),
+            ],
+            learned_loss: LearnedLoss {
+                first: nn::linear(&loss / "0", wide, narrow, Default::default()),
+                norm1: nn::layer_norm(&loss / "norm1", vec![narrow], Default::default()),
+                second: nn::linear(&loss / "1", narrow, narrow, Default::default()),
+                norm2: nn::layer_norm(&loss / "norm2", vec![narrow], Default::default()),
+                out: nn::linear(&loss / "2", narrow, 1, Default::default()),
+            },
+            channels_last: false,
+        }
+    }
+
+    /// The parameters the inner step adapts (the trunk's, then the action MLP's), as they are before it.
+    pub fn initial_weights(&self) -> Vec<Tensor> {
+        let conv = self.convs.iter().flat_map(|(_, c)| [c.ws.shallow_clone(), bias(&c.bs)]);
+        let mlp = self.action_mlp.iter().flat_map(|l| [l.ws.shallow_clone(), bias(&l.bs)]);
+        conv.chain(mlp).collect()
+    }
+
+    /// Spatial-softmax features `[N, 2C]` of normalised images `[N, 3, H, W]` under `weights`.
+    fn embed(&self, weights: &[Tensor], images: &Tensor) -> Tensor {
+        let mut y = if self.channels_last {
+            images.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
+        } else {
+            images.shallow_clone()
+        };
+        for (k, (spec, _)) in self.convs.iter().enumerate() {
+            y = y.conv2d(&weights[2 * k], Some(&weights[2 * k + 1]), [spec.stride], [1], [1], 1).relu();
+            if spec.pool {
+                y = y.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
+            }
+        }
+        spatial_softmax(&y)
+    }
+
+    /// The action MLP's output `[N, 50]` for features `[N, 2C]` under `weights`.
+    fn act(&self, weights: &[Tensor], features: &Tensor) -> Tensor {
+        let offset = 2 * self.convs.len();
+        (0..self.action_mlp.len()).fold(features.shallow_clone(), |x, i| {
+            x.linear(&weights[offset + 2 * i], Some(&weights[offset + 2 * i + 1])).relu()
+        })
+    }
+
+    /// The weights after one inner step on the learned loss of one task's context frames `[Tc, 3, H, W]`. With
+    /// `second_order` (training), an outer loss differentiates through the step's gradient, which is how the
+    /// learned loss is trained; otherwise that gradient is a constant (first-order MAML: the outer gradient still
+    /// reaches the initial weights, never the learned loss).
+    pub fn adapt(&self, context: &Tensor, second_order: bool) -> Vec<Tensor> {
+        tch::with_grad(|| {
+            let weights = self.initial_weights();
+            let features = self.embed(&weights, context);
+            let input = Tensor::cat(&[self.act(&weights, &features), features], -1).reshape([1, -1]);
+            let loss = self.learned_loss.forward(&input).sum(Kind::Float);
+            let grads = Tensor::run_backward(&[loss], &weights, second_order, second_order);
+            weights
+                .iter()
+                .zip(grads)
+                .map(|(w, g)| if second_order { w - g * INNER_LR } else { w - g.detach() * INNER_LR })
+                .collect()
+        })
+    }
+
+    /// Adapted weights for each task of a batch of contexts `[B, Tc, 3, H, W]`.
+    fn adapt_batch(&self, context: &Tensor, train: bool) -> Vec<Vec<Tensor>> {
+        (0..context.size()[0]).map(|b| self.adapt(&context.get(b), train)).collect()
+    }
+
+    /// Action distributions `[Ta, 8, mixtures]` and predicted grasp-and-drop positions `[6]` for one task's agent
+    /// frames `[Ta, 3, H, W]` under its adapted weights.
+    fn task_outputs(&self, weights: &[Tensor], agent: &Tensor) -> (MixtureParams, Tensor) {
+        let features = self.embed(weights, agent);
+        let actions = self.head.forward(&self.act(weights, &features));
+        let pose = self.pose[1].forward(&self.pose[0].forward(&features.narrow(0, 0, 1)).relu()).squeeze_dim(0);
+        (actions, pose)
+    }
+
+    /// Outputs for a batch, stacked: actions `[B, Ta, 8, mixtures]` and poses `[B, 6]`.
+    fn batch_outputs(&self, context: &Tensor, agent: &Tensor, train: bool) -> (MixtureParams, Tensor) {
+        let per_task: Vec<(MixtureParams, Tensor)> = self
+            .adapt_batch(context, train)
+            .iter()
+            .enumerate()
+            .map(|(b, w)| self.task_outputs(w, &agent.get(b as i64)))
+            .collect();
+        let stack = |f: fn(&MixtureParams) -> &Tensor| {
+            Tensor::stack(&per_task.iter().map(|(m, _)| f(m)).collect::<Vec<_>>(), 0)
+        };
+        let actions = MixtureParams {
+            means: stack(|m| &m.means),
+            log_scales: stack(|m| &m.log_scales),
+            logits: stack(|m| &m.logits),
+        };
+        let poses = Tensor::stack(&per_task.iter().map(|(_, p)| p).collect::<Vec<_>>(), 0);
+        (actions, poses)
+    }
+}
+
+/// A layer's bias (every layer here has one).
+fn bias(b: &Option<Tensor>) -> Tensor {
+    b.as_ref().expect("layers are built with a bias").shallow_clone()
+}
+
+impl PolicyNet for Daml {
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
+        PolicyOutput { actions: self.batch_outputs(context, agent, train).0, inverse: None, point: None }
+    }
+
+    fn set_channels_last(&mut self, on: bool) {
+        self.channels_last = on;
+    }
+
+    /// Behaviour cloning of each task's agent actions under the weights adapted to its demonstration, and the
+    /// mean squared error of the grasp-and-drop positions (the authors' outer loss).
+    fn losses(&self, batch: &DeviceBatch, spec: MixtureSpec, train: bool) -> Losses {
+        let (actions, poses) = self.batch_outputs(&batch.context, &batch.agent, train);
+        let steps = batch.actions.size()[1];
+        let acted = MixtureParams {
+            means: actions.means.narrow(1, 0, steps),
+            log_scales: actions.log_scales.narrow(1, 0, steps),
+            logits: actions.logits.narrow(1, 0, steps),
+        };
+        let zero = || Tensor::zeros([], (Kind::Float, batch.actions.device()));
+        Losses {
+            bc: mixture_nll(&acted, &batch.actions, spec),
+            inverse: zero(),
+            point: zero(),
+            pose: poses.mse_loss(&batch.poses, Reduction::Mean),
+        }
+    }
+
+    fn predict_poses(&self, context: &Tensor, agent: &Tensor) -> Option<Tensor> {
+        Some(self.batch_outputs(context, &agent.narrow(1, 0, 1), false).1)
+    }
+}

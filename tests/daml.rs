@@ -1,0 +1,93 @@
+//! DAML's meta-learning: the inner step on the learned loss, and the second-order outer gradient.
+use oneshot_lab::data::loader::DeviceBatch;
+use oneshot_lab::model::architectures::daml::Daml;
+use oneshot_lab::model::config::{Architecture, ModelConfig};
+use oneshot_lab::model::mixture::MixtureSpec;
+use oneshot_lab::model::policy::PolicyNet;
+use tch::{Device, Kind, Tensor, nn};
+
+fn tiny() -> ModelConfig {
+    ModelConfig { architecture: Architecture::named("daml"), backbone_width: 8, ..ModelConfig::default() }
+}
+
+fn batch() -> DeviceBatch {
+    let opts = (Kind::Float, Device::Cpu);
+    DeviceBatch {
+        context: Tensor::randn([2, 4, 3, 32, 40], opts),
+        agent: Tensor::randn([2, 7, 3, 32, 40], opts),
+        actions: Tensor::rand([2, 6, 8], opts) * 2.0 - 1.0,
+        points: Tensor::rand([2, 2], opts) * 2.0 - 1.0,
+        poses: Tensor::rand([2, 6], opts),
+    }
+}
+
+/// The largest gradient entry of the variables whose names start with `prefix` (0 where none has a gradient).
+fn largest_grad(vs: &nn::VarStore, prefix: &str) -> f64 {
+    let vars = vs.variables();
+    let grads: Vec<f64> = vars
+        .iter()
+        .filter(|(name, _)| name.starts_with(prefix))
+        .map(|(_, t)| {
+            let g = t.grad();
+            if g.defined() { g.abs().max().double_value(&[]) } else { 0.0 }
+        })
+        .collect();
+    assert!(!grads.is_empty(), "no variable is named {prefix}*");
+    grads.into_iter().fold(0.0, f64::max)
+}
+
+#[test]
+fn the_inner_step_adapts_every_trunk_and_action_weight() {
+    tch::manual_seed(0);
+    let vs = nn::VarStore::new(Device::Cpu);
+    let daml = Daml::new(&vs.root(), &tiny());
+    let context = Tensor::randn([4, 3, 32, 40], (Kind::Float, Device::Cpu));
+    let adapted = daml.adapt(&context, true);
+    let initial = daml.initial_weights();
+    assert_eq!(adapted.len(), initial.len());
+    for (k, (a, w)) in adapted.iter().zip(&initial).enumerate() {
+        assert!((a - w).abs().max().double_value(&[]) > 0.0, "weight {k} was not changed by the inner step");
+    }
+    let other = daml.adapt(&Tensor::randn([4, 3, 32, 40], (Kind::Float, Device::Cpu)), true);
+    assert!((&other[0] - &adapted[0]).abs().max().double_value(&[]) > 0.0, "another demonstration adapts differently");
+}
+
+#[test]
+fn the_outer_gradient_reaches_the_learned_loss_only_through_the_second_order_step() {
+    tch::manual_seed(1);
+    let config = tiny();
+    let vs = nn::VarStore::new(Device::Cpu);
+    let daml = Daml::new(&vs.root(), &config);
+    let spec = MixtureSpec::for_model(&config);
+    let b = batch();
+
+    // Training (second order): behaviour cloning and pose regression reach the initial weights and the learned loss.
+    let l = daml.losses(&b, spec, true);
+    (&l.bc + &l.pose).backward();
+    assert!(largest_grad(&vs, "conv3.") > 0.0, "the initial trunk weights get a gradient");
+    assert!(largest_grad(&vs, "action_mlp.") > 0.0, "the initial action weights get a gradient");
+    assert!(largest_grad(&vs, "pose.") > 0.0, "the pose head gets a gradient");
+    assert!(largest_grad(&vs, "learned_loss.") > 0.0, "the learned loss is trained through the inner step");
+
+    // A first-order step: the same outer loss leaves the learned loss without a gradient.
+    let fresh = nn::VarStore::new(Device::Cpu);
+    let first_order = Daml::new(&fresh.root(), &config);
+    let l = first_order.losses(&b, spec, false);
+    (&l.bc + &l.pose).backward();
+    assert!(largest_grad(&fresh, "conv3.") > 0.0, "first order still trains the initial weights");
+    assert_eq!(largest_grad(&fresh, "learned_loss."), 0.0, "first order never trains the learned loss");
+}
+
+#[test]
+fn predicted_poses_come_from_the_first_agent_frame() {
+    tch::manual_seed(2);
+    let vs = nn::VarStore::new(Device::Cpu);
+    let daml = Daml::new(&vs.root(), &tiny());
+    let b = batch();
+    let poses = daml.predict_poses(&b.context, &b.agent).expect("DAML has a pose head");
+    assert_eq!(poses.size(), [2, 6]);
+    let later = b.agent.copy();
+    let _ = later.narrow(1, 1, 6).fill_(2.0);
+    let same = daml.predict_poses(&b.context, &later).unwrap();
+    assert!((&poses - &same).abs().max().double_value(&[]) < 1e-6, "later frames do not change the prediction");
+}
