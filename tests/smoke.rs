@@ -51,5 +51,18 @@ fn the_smoke_experiment_runs_the_whole_chain_and_reports() {
     }
     let index = std::fs::read_to_string(report.join("index.md")).unwrap();
     assert!(index.contains("| expert | 1/1 |") && index.contains("code version"));
+    // Every evaluated policy recorded episode 0 (task 0) as a video, copied beside the report and linked.
+    let videos: Vec<String> = std::fs::read_dir(report.join("videos"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    assert_eq!(videos.len(), 4, "{videos:?}");
+    for v in &videos {
+        assert!(v.contains("episode_0000_task00") && index.contains(&format!("(videos/{v})")), "{v}");
+        let gif = std::fs::File::open(report.join("videos").join(v)).unwrap();
+        let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif)).unwrap();
+        let frames = image::AnimationDecoder::into_frames(decoder).count();
+        assert!(frames > 20, "{v} has {frames} frames");
+    }
     std::fs::remove_dir_all(&store).unwrap();
 }

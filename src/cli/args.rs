@@ -253,7 +253,14 @@ pub struct EvalArgs {
     /// Episode indices to draw as PNG strips (needs --out).
     #[arg(long, value_delimiter = ',')]
     pub strips: Vec<usize>,
-    /// Folder for episodes.jsonl, summary.json and strips.
+    /// Episode indices to record as GIFs, the demonstration beside the rollout (needs --out).
+    #[arg(long, value_delimiter = ',')]
+    pub videos: Vec<usize>,
+    /// Who moves the agent: `policy` (the network's actions) or `scripted_poses` (DAML-Auxiliary: the scripted
+    /// expert executes the grasp and drop positions the network predicts).
+    #[arg(long)]
+    pub control: Option<String>,
+    /// Folder for episodes.jsonl, summary.json, strips and videos.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Frames of the reference policies' world (a trained policy runs in its own).

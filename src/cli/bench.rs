@@ -187,7 +187,8 @@ fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
     let specs = config.episode_specs(&HashSet::new());
     for (name, policy) in [("small network", Policy::Network(&trained)), ("random policy", Policy::Random)] {
         let start = Instant::now();
-        let results = rollouts(&policy, &world, &config, &specs, workers, &EvalOutput { strips_dir: None })?;
+        let results =
+            rollouts(&policy, &world, &config, &specs, workers, &EvalOutput { strips_dir: None, videos_dir: None })?;
         let s = start.elapsed().as_secs_f64();
         let steps: usize = results.iter().map(|r| r.steps).sum();
         println!(

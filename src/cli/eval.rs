@@ -21,6 +21,11 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     config.device = a.device.unwrap_or(config.device);
     config.tasks = a.tasks.unwrap_or(config.tasks);
     config.strips = a.strips;
+    config.videos = a.videos;
+    if let Some(control) = &a.control {
+        config.control =
+            parse_named(control).map_err(|e| anyhow::anyhow!("--control {e} (policy or scripted_poses)"))?;
+    }
     if let Some(history) = &a.history {
         config.history = parse_named(history).map_err(|e| anyhow::anyhow!("--history {e} (reset or sliding)"))?;
     }
@@ -49,7 +54,7 @@ pub fn eval(a: EvalArgs) -> Result<()> {
 /// Prints the open-loop errors of a trained policy per action dimension.
 pub fn probe(a: ProbeArgs) -> Result<()> {
     let trained = load_trained(&a.policy, a.checkpoint, parse_device(&a.device)?)?;
-    let data = PairDataset::open(&a.demos, &a.agents, trained.summary.train.val_fraction)?;
+    let data = PairDataset::open(&a.demos, &a.agents, trained.summary.train.val_fraction, None)?;
     let split = if a.train_split { Split::Train } else { Split::Val };
     print_probe(&open_loop(&trained, &data, split, a.windows, 16, a.seed)?);
     Ok(())

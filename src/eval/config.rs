@@ -63,6 +63,10 @@ pub struct EvalConfig {
     pub device: String,
     /// Episode indices to draw as PNG strips (context frames beside the agent's frames).
     pub strips: Vec<usize>,
+    /// Episode indices to record as animated GIFs (the demonstration beside the rollout, with its stages); the
+    /// report links them. Left out of stage keys when empty.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub videos: Vec<usize>,
     /// How the agent's recent frames are kept (the authors clear them once `history_frames` are held).
     pub history: HistoryMode,
     /// Most agent frames the network sees; at most `model.agent_frames - 1`, the window positions that
@@ -97,6 +101,7 @@ impl Default for EvalConfig {
             demo_attempts: 10,
             device: "auto".into(),
             strips: Vec::new(),
+            videos: Vec::new(),
             history: HistoryMode::Reset,
             history_frames: 5,
             action: ActionChoice::Sample,
@@ -128,6 +133,9 @@ impl EvalConfig {
         }
         if let Some(i) = self.strips.iter().find(|&&i| i >= self.episodes) {
             bail!("eval.strips contains episode {i}, but there are {} episodes", self.episodes);
+        }
+        if let Some(i) = self.videos.iter().find(|&&i| i >= self.episodes) {
+            bail!("eval.videos contains episode {i}, but there are {} episodes", self.episodes);
         }
         crate::device::parse_device(&self.device)?;
         Ok(())

@@ -15,6 +15,7 @@ pub mod run;
 pub mod stats;
 pub mod strip;
 pub mod summary;
+pub mod video;
 pub mod workers;
 
 pub use config::{ActionChoice, EvalConfig};
@@ -41,7 +42,8 @@ pub struct EpisodeResult {
     pub first_placed: Option<usize>,
 }
 
-/// Where strips go, if any are asked for.
+/// Where strips and videos go, if any are asked for.
 pub struct EvalOutput {
     pub strips_dir: Option<PathBuf>,
+    pub videos_dir: Option<PathBuf>,
 }

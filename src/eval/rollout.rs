@@ -4,7 +4,7 @@ use super::config::{ActionChoice, Control, EvalConfig};
 use super::history::AgentHistory;
 use super::policy::Policy;
 use super::workers::{EpisodeSpec, WorkerPool, WorkerSpec};
-use super::{EpisodeResult, EvalOutput, strip};
+use super::{EpisodeResult, EvalOutput, strip, video};
 use crate::data::augment::AugmentDraw;
 use crate::data::pairs::context_indices;
 use crate::data::trajectory::jpeg_round_trip;
@@ -13,6 +13,7 @@ use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
 use crate::sim::env::WorldConfig;
 use crate::sim::expert::Guidance;
+use crate::sim::milestones::Milestones;
 use crate::train::TrainedPolicy;
 use anyhow::{Context, Result, bail};
 use rand::SeedableRng;
@@ -128,11 +129,13 @@ fn run_wave(
     if let (Policy::Network(p), true) = (policy, scripted) {
         pool.guide(&predicted_guidance(p, &inputs, world, device)?)?;
     }
-    let strip_wanted: Vec<bool> = wave.iter().map(|e| config.strips.contains(&e.index)).collect();
-    let mut strip_frames: Vec<Vec<Vec<u8>>> = started
+    // Frames of the episodes drawn as strips or videos, each with the stages that held when it was seen.
+    let recorded: Vec<bool> =
+        wave.iter().map(|e| config.strips.contains(&e.index) || config.videos.contains(&e.index)).collect();
+    let mut frames: Vec<Vec<(Vec<u8>, Milestones)>> = started
         .iter()
-        .zip(&strip_wanted)
-        .map(|(s, &want)| if want { vec![s.frame.clone()] } else { Vec::new() })
+        .zip(&recorded)
+        .map(|(s, &want)| if want { vec![(s.frame.clone(), Milestones::default())] } else { Vec::new() })
         .collect();
     let mut results: Vec<EpisodeResult> = wave
         .iter()
@@ -184,16 +187,23 @@ fn run_wave(
             if let (Policy::Network(p), false) = (policy, scripted) {
                 inputs[j].history.push(network_frame(&s.frame, world, p.summary.jpeg_quality)?);
             }
-            if strip_wanted[j] {
-                strip_frames[j].push(s.frame.clone());
+            if recorded[j] {
+                frames[j].push((s.frame.clone(), s.milestones));
             }
         }
     }
     if let Some(dir) = &output.strips_dir {
-        for j in (0..n).filter(|&j| strip_wanted[j]) {
+        for j in (0..n).filter(|&j| config.strips.contains(&wave[j].index)) {
             let path = dir.join(format!("episode_{:04}_task{:02}.png", wave[j].index, wave[j].task));
-            strip::write_strip(&path, &started[j].demo_frames, &strip_frames[j], world.image, &results[j])
+            let agent: Vec<Vec<u8>> = frames[j].iter().map(|(f, _)| f.clone()).collect();
+            strip::write_strip(&path, &started[j].demo_frames, &agent, world.image, &results[j])
                 .with_context(|| format!("writing strip {}", path.display()))?;
+        }
+    }
+    if let Some(dir) = &output.videos_dir {
+        for j in (0..n).filter(|&j| config.videos.contains(&wave[j].index)) {
+            video::write_video(dir, &started[j].demo_frames, &frames[j], world.image, world.policy_hz, &results[j])
+                .with_context(|| format!("writing the video of episode {}", wave[j].index))?;
         }
     }
     Ok(results)

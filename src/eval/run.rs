@@ -1,5 +1,5 @@
 //! Evaluation's entry point: load the policy, run its episodes, and write the episodes, the summary and any strips
-//! into an output folder.
+//! and videos into an output folder.
 use super::config::EvalConfig;
 use super::layouts::Layouts;
 use super::policy::{Policy, PolicyFiles};
@@ -14,8 +14,10 @@ use std::path::Path;
 /// File names of an evaluation folder.
 pub const EPISODES_FILE: &str = "episodes.jsonl";
 pub const SUMMARY_FILE: &str = "summary.json";
+/// The folder of an evaluation's rollout videos.
+pub const VIDEOS_DIR: &str = "videos";
 
-/// Runs the evaluation of `policy` and, with `out`, writes the episodes, the summary and any strips there. A
+/// Runs the evaluation of `policy` and, with `out`, writes the episodes, the summary, strips and videos there. A
 /// trained policy runs in the world it was trained in; `world`, if given, must be that world (reference policies
 /// run in `world` or the default world).
 pub fn run_eval(
@@ -33,7 +35,7 @@ pub fn run_eval(
         Policy::Network(t) => world.cloned().unwrap_or_else(|| t.summary.world.clone()),
         _ => world.cloned().unwrap_or_default(),
     };
-    let output = EvalOutput { strips_dir: out.map(|o| o.join("strips")) };
+    let output = EvalOutput { strips_dir: out.map(|o| o.join("strips")), videos_dir: out.map(|o| o.join(VIDEOS_DIR)) };
     let results = rollouts(&loaded, &world, config, &layouts.episodes(config)?, workers, &output)?;
     let summary = summarize(loaded.name(), &results);
     if let Some(out) = out {

@@ -3,6 +3,7 @@ pub mod data;
 pub mod paper;
 pub mod plots;
 pub mod tables;
+pub mod videos;
 
 use crate::config::FULL;
 use crate::pipeline::graph::short;
@@ -124,6 +125,7 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         index += &tables::steps_markdown(&step_curves);
         index += "\n![success against training steps](success_vs_steps.png)\n";
     }
+    index += &videos::copy_and_list(store, &rows, &staging)?;
     index += "\n## Figures\n\n![success per configuration](success_by_configuration.png)\n\n";
     if architectures.len() > 1 {
         index += "![success per architecture](success_by_architecture.png)\n\n";
