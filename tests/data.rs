@@ -96,3 +96,52 @@ fn out_of_range_task_is_an_error_naming_it() {
     let err = tiny(Robot::Panda, vec![0, 16], 1).validate().unwrap_err();
     assert!(format!("{err:#}").contains("16"), "{err:#}");
 }
+
+#[test]
+fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collection() {
+    use oneshot_lab::config::Experiment;
+    use oneshot_lab::data::pairs::{PairDataset, Split};
+    use oneshot_lab::pipeline::stages::{Job, collection_totals, plan};
+    let dir = scratch("nested");
+    let file = dir.join("sizes.toml");
+    let text = "[world]\nimage = { height = 32, width = 40 }\n[collect]\ntasks = [0, 6]\n[grid]\nsizes = [32, 48]\n";
+    std::fs::write(&file, text).unwrap();
+
+    // One collection per robot, of 3 slots per task; the 32 cell's training names the 2 slots it uses.
+    let experiment = Experiment::load(&file, None).unwrap();
+    let nested = plan(&experiment);
+    assert_eq!(collection_totals(&nested), (2, 2 * 3 * 2), "one collection per robot, 3 slots of 2 tasks each");
+    let train_of = |cell: &str| {
+        let c = nested.cells.iter().find(|c| c.name.starts_with(cell)).unwrap();
+        &nested.stages[c.train.as_ref().unwrap()]
+    };
+    let (small, large) = (train_of("n32"), train_of("n48"));
+    assert_eq!(small.inputs["per_task"], 2);
+    assert!(large.inputs.get("per_task").is_none(), "the largest size uses the whole collection");
+    assert_eq!(small.upstream, large.upstream, "both train on the same collections");
+    assert!(matches!(&small.job, Job::Train(t) if t.per_task == Some(2)));
+    let separate =
+        Experiment { grid: oneshot_lab::config::Grid { nested: false, ..experiment.grid.clone() }, ..experiment };
+    assert_eq!(collection_totals(&plan(&separate)), (4, 2 * (2 + 3) * 2), "grid.nested = false collects each size");
+
+    // The first two slots of the larger collection are, file for file, a separate collection of two slots.
+    for robot in [Robot::Sawyer, Robot::Panda] {
+        let big = collect(&tiny(robot, vec![0, 6], 3), &dir.join(format!("big-{robot}")), 2, false).unwrap();
+        let small = collect(&tiny(robot, vec![0, 6], 2), &dir.join(format!("small-{robot}")), 2, false).unwrap();
+        assert_eq!(big.trajectories.len(), 6);
+        for e in &small.trajectories {
+            let a = std::fs::read(dir.join(format!("small-{robot}")).join(&e.file)).unwrap();
+            let b = std::fs::read(dir.join(format!("big-{robot}")).join(&e.file)).unwrap();
+            assert_eq!(a, b, "{}", e.file);
+        }
+    }
+    let subset = PairDataset::open(&dir.join("big-sawyer"), &dir.join("big-panda"), 0.1, Some(2)).unwrap();
+    let own = PairDataset::open(&dir.join("small-sawyer"), &dir.join("small-panda"), 0.1, None).unwrap();
+    for split in [Split::Train, Split::Val] {
+        assert_eq!(subset.pairs(split), own.pairs(split), "{split:?}");
+    }
+    assert_eq!(subset.pairs(Split::Train), 2, "slot 0 of each task trains, slot 1 validates");
+    let err = PairDataset::open(&dir.join("big-sawyer"), &dir.join("big-panda"), 0.1, Some(4)).err().unwrap();
+    assert!(err.to_string().contains("fewer than the 4 asked for"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -39,3 +39,11 @@ fn the_baselines_file_has_every_table_1_model() {
         }
     }
 }
+
+#[test]
+fn the_ablations_grid_collects_once_per_robot() {
+    use oneshot_lab::pipeline::stages::{collection_totals, plan};
+    let e = Experiment::load(Path::new("experiments/ablations.toml"), None).unwrap();
+    assert_eq!(e.grid.sizes, [480, 800, 1600]);
+    assert_eq!(collection_totals(&plan(&e)), (2, 2 * 1600), "the 480 and 800 sets are slots of the 1600 collection");
+}

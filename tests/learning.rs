@@ -58,7 +58,12 @@ fn a_briefly_trained_policy_goes_to_the_demonstrated_object_in_closed_loop() {
     };
     let (demos, agents) = (dir.join("sawyer"), dir.join("panda"));
     let out = dir.join("model");
-    train(&model, &config, &TrainRun { demo_dir: &demos, agent_dir: &agents, out: &out, progress: false }).unwrap();
+    train(
+        &model,
+        &config,
+        &TrainRun { demo_dir: &demos, agent_dir: &agents, per_task: None, out: &out, progress: false },
+    )
+    .unwrap();
 
     let layouts = Layouts::Training { demos: demos.clone(), agents: agents.clone() };
     let eval = EvalConfig {

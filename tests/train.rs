@@ -39,7 +39,13 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
         ..TrainConfig::default()
     };
     let out = dir.join("model");
-    let run = TrainRun { demo_dir: &dir.join("sawyer"), agent_dir: &dir.join("panda"), out: &out, progress: false };
+    let run = TrainRun {
+        demo_dir: &dir.join("sawyer"),
+        agent_dir: &dir.join("panda"),
+        per_task: None,
+        out: &out,
+        progress: false,
+    };
     let summary = train(&model, &config, &run).unwrap();
     assert!(summary.final_val_bc < summary.first_val_bc - 0.15, "{} -> {}", summary.first_val_bc, summary.final_val_bc);
     let points = curve::read(&out.join("curve.jsonl"), u64::MAX).unwrap();

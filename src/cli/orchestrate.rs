@@ -2,10 +2,12 @@
 use super::args::{PlanArgs, RunArgs, RunStageArgs};
 use super::default_workers;
 use anyhow::{Result, bail};
+use oneshot_lab::config::{Experiment, Grid};
 use oneshot_lab::pipeline::graph::short;
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::scheduler::{RunOptions, display_name, run as run_plan};
 use oneshot_lab::pipeline::slurm::{SlurmOptions, run_stage as run_one_stage};
+use oneshot_lab::pipeline::stages::{self, collection_totals};
 use oneshot_lab::pipeline::store::{StageState, Store};
 
 /// Runs what is missing, records the experiment's cells and (unless `--only` or a dry run) writes its report.
@@ -90,6 +92,19 @@ pub fn plan(a: PlanArgs) -> Result<()> {
     let mut store = Store::open(&a.store.store)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     println!("{}: {} cells, {} distinct stages", experiment.name, plan.cells.len(), plan.stages.len());
+    if experiment.grid.nested {
+        let separate = Experiment { grid: Grid { nested: false, ..experiment.grid.clone() }, ..experiment.clone() };
+        let (stages, trajectories) = collection_totals(&plan);
+        let (separate_stages, separate_trajectories) = collection_totals(&stages::plan(&separate));
+        if separate_trajectories > trajectories {
+            println!(
+                "nested dataset sizes: {stages} collections of {trajectories} trajectories in all, instead of \
+                 {separate_stages} of {separate_trajectories} collected separately ({} fewer; grid.nested = false \
+                 collects each size on its own)",
+                separate_trajectories - trajectories
+            );
+        }
+    }
     println!("{:<28} {:<20} {:<20} {:<20} {:<20}", "cell", "collect sawyer", "collect panda", "train", "eval");
     let cell_state = |k: &Option<String>| -> Result<String> {
         Ok(match k {

@@ -13,7 +13,7 @@ pub fn train(a: TrainArgs) -> Result<()> {
     c.train.steps = a.steps.unwrap_or(c.train.steps);
     c.train.batch_size = a.batch_size.unwrap_or(c.train.batch_size);
     c.train.device = a.device.unwrap_or(c.train.device);
-    let paths = TrainRun { demo_dir: &a.demos, agent_dir: &a.agents, out: &a.out, progress: true };
+    let paths = TrainRun { demo_dir: &a.demos, agent_dir: &a.agents, per_task: None, out: &a.out, progress: true };
     let s = run(&c.model, &c.train, &paths)?;
     println!(
         "trained {} steps in {:.0} s ({} parameters): validation BC {:.3} -> {:.3}; weights in {}",

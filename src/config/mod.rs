@@ -52,11 +52,15 @@ pub struct Grid {
     /// Training seeds.
     pub seeds: Vec<u64>,
     pub references: Vec<Reference>,
+    /// Smaller sizes train on the first slots of each task of the largest size's collection (collected once per
+    /// robot and collection settings); `false` collects every size separately (the authors' protocol). A size's
+    /// trajectories are the same either way: a slot's layout depends on the seed, robot, task and slot alone.
+    pub nested: bool,
 }
 
 impl Default for Grid {
     fn default() -> Self {
-        Grid { sizes: vec![1600], variants: vec![FULL.into()], seeds: vec![0], references: Vec::new() }
+        Grid { sizes: vec![1600], variants: vec![FULL.into()], seeds: vec![0], references: Vec::new(), nested: true }
     }
 }
 

@@ -41,11 +41,23 @@ pub struct PairDataset {
     pub width: usize,
 }
 
-/// Loads every trajectory of a collection folder (checking digests) in parallel.
-fn load_collection(dir: &Path, robot: Robot) -> Result<(Manifest, Vec<Trajectory>)> {
-    let manifest = Manifest::load(dir)?;
+/// Loads the trajectories of a collection folder (checking digests) in parallel: every one, or the first
+/// `per_task` slots of each task (the manifest then reads as a collection of that size).
+fn load_collection(dir: &Path, robot: Robot, per_task: Option<usize>) -> Result<(Manifest, Vec<Trajectory>)> {
+    let mut manifest = Manifest::load(dir)?;
     if manifest.config.robot != robot {
         bail!("{} holds {} trajectories, expected {robot}", dir.display(), manifest.config.robot);
+    }
+    if let Some(n) = per_task {
+        if n > manifest.config.per_task {
+            bail!(
+                "{} holds {} trajectories per task, fewer than the {n} asked for",
+                dir.display(),
+                manifest.config.per_task
+            );
+        }
+        manifest.trajectories.retain(|e| e.index < n);
+        manifest.config.per_task = n;
     }
     let trajs = manifest
         .trajectories
@@ -65,10 +77,11 @@ fn split_of(index: usize, per_task: usize, val_fraction: f64) -> Split {
 }
 
 impl PairDataset {
-    /// Opens a demonstrator collection and an agent collection; `val_fraction` of each task's slots validate.
-    pub fn open(demo_dir: &Path, agent_dir: &Path, val_fraction: f64) -> Result<PairDataset> {
-        let (dm, demos) = load_collection(demo_dir, Robot::Sawyer)?;
-        let (am, agents) = load_collection(agent_dir, Robot::Panda)?;
+    /// Opens a demonstrator collection and an agent collection, all of each or the first `per_task` slots of each
+    /// task; `val_fraction` of each task's slots validate.
+    pub fn open(demo_dir: &Path, agent_dir: &Path, val_fraction: f64, per_task: Option<usize>) -> Result<PairDataset> {
+        let (dm, demos) = load_collection(demo_dir, Robot::Sawyer, per_task)?;
+        let (am, agents) = load_collection(agent_dir, Robot::Panda, per_task)?;
         let (di, ai) = (dm.config.world.image, am.config.world.image);
         if di != ai {
             bail!("frame sizes differ: demonstrator {}x{}, agent {}x{}", di.height, di.width, ai.height, ai.width);

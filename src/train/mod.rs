@@ -128,6 +128,8 @@ fn mean_losses(policy: &Policy, batches: &[DeviceBatch], w: &LossWeights, step: 
 pub struct TrainRun<'a> {
     pub demo_dir: &'a Path,
     pub agent_dir: &'a Path,
+    /// Train on the first this many slots of each task of both collections (none: all of them).
+    pub per_task: Option<usize>,
     pub out: &'a Path,
     pub progress: bool,
 }
@@ -138,7 +140,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     config.validate()?;
     config::check_heads(model, config)?;
     let device = config.device()?;
-    let data = Arc::new(PairDataset::open(run.demo_dir, run.agent_dir, config.val_fraction)?);
+    let data = Arc::new(PairDataset::open(run.demo_dir, run.agent_dir, config.val_fraction, run.per_task)?);
     data.check_fits(model)?;
     let ckpt_dir = run.out.join(CHECKPOINT_DIR);
     std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("creating {}", ckpt_dir.display()))?;

@@ -170,16 +170,39 @@ pub struct StageOutputs {
     pub curve: Vec<CurvePoint>,
 }
 
+/// The collect stages of `plan` and the trajectories they gather in all (both robots).
+pub fn collection_totals(plan: &Plan) -> (usize, usize) {
+    let jobs: Vec<&collect::CollectJob> = plan
+        .stages
+        .values()
+        .filter_map(|s| match &s.job {
+            Job::Collect(c) => Some(c),
+            _ => None,
+        })
+        .collect();
+    (jobs.len(), jobs.iter().map(|c| c.per_task * c.settings.tasks.len()).sum())
+}
+
 /// Expands `experiment` into its stages and cells: per cell, a collection per robot, training, and an evaluation
 /// of the final weights and of each chosen checkpoint; then one evaluation per reference policy.
 pub fn plan(experiment: &Experiment) -> Plan {
     let mut plan = Plan::default();
+    // With nested sizes, each collection (world and collection settings) is made once, at its largest size.
+    let collection_of = |c: &crate::config::CellConfig| serde_json::json!([c.world, c.collect]).to_string();
+    let mut largest: HashMap<String, usize> = HashMap::new();
+    for cell in &experiment.cells {
+        let per_task = cell.size / NUM_TASKS;
+        let entry = largest.entry(collection_of(&cell.config)).or_insert(per_task);
+        *entry = (*entry).max(per_task);
+    }
     for cell in &experiment.cells {
         let c = &cell.config;
         let per_task = cell.size / NUM_TASKS;
-        let demos = collect::add(&mut plan, Robot::Sawyer, per_task, c);
-        let agents = collect::add(&mut plan, Robot::Panda, per_task, c);
-        let train = train::add(&mut plan, c, &demos, &agents);
+        let collected = if experiment.grid.nested { largest[&collection_of(c)] } else { per_task };
+        let demos = collect::add(&mut plan, Robot::Sawyer, collected, c);
+        let agents = collect::add(&mut plan, Robot::Panda, collected, c);
+        let subset = (per_task < collected).then_some(per_task);
+        let train = train::add(&mut plan, c, &demos, &agents, subset);
         let data = [demos.clone(), agents.clone()];
         let checkpoints =
             c.eval.checkpoints.iter().map(|&s| (s, eval::add_trained(&mut plan, c, &train, Some(s), &data))).collect();

@@ -11,13 +11,15 @@ use std::path::Path;
 /// Implementation version of training (part of every train key).
 pub const VERSION: u32 = 2;
 
-/// What a train stage runs: the network and training settings, and the keys of the two collections.
+/// What a train stage runs: the network and training settings, the keys of the two collections, and how many
+/// slots per task it uses of them (none: all).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrainJob {
     pub model: ModelConfig,
     pub train: TrainConfig,
     pub demos: String,
     pub agents: String,
+    pub per_task: Option<usize>,
 }
 
 /// Training settings that do not change results (where it runs, how far ahead batches are made, the tensor
@@ -26,11 +28,20 @@ fn identity(t: &TrainConfig) -> TrainConfig {
     TrainConfig { device: "auto".into(), prefetch: 0, memory_format: Default::default(), ..t.clone() }
 }
 
-/// Adds a cell's training on the collections `demos` and `agents`; returns its key.
-pub fn add(plan: &mut Plan, cell: &CellConfig, demos: &str, agents: &str) -> String {
-    let inputs = serde_json::json!({ "model": cell.model, "train": identity(&cell.train) });
-    let job =
-        TrainJob { model: cell.model.clone(), train: cell.train.clone(), demos: demos.into(), agents: agents.into() };
+/// Adds a cell's training on the collections `demos` and `agents` (their first `per_task` slots of each task, if
+/// given: then the key says so); returns its key.
+pub fn add(plan: &mut Plan, cell: &CellConfig, demos: &str, agents: &str, per_task: Option<usize>) -> String {
+    let mut inputs = serde_json::json!({ "model": cell.model, "train": identity(&cell.train) });
+    if let Some(n) = per_task {
+        inputs["per_task"] = n.into();
+    }
+    let job = TrainJob {
+        model: cell.model.clone(),
+        train: cell.train.clone(),
+        demos: demos.into(),
+        agents: agents.into(),
+        per_task,
+    };
     plan.add(inputs, vec![demos.into(), agents.into()], super::Job::Train(job))
 }
 
@@ -40,6 +51,7 @@ pub fn run(job: &TrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext
     let run = TrainRun {
         demo_dir: upstream.get(&job.demos)?,
         agent_dir: upstream.get(&job.agents)?,
+        per_task: job.per_task,
         out: staging,
         progress: ctx.progress,
     };
