@@ -18,6 +18,14 @@ fn config(episodes: usize, horizon: usize) -> EvalConfig {
     EvalConfig { episodes, horizon, batch: 8, device: "cpu".into(), ..EvalConfig::default() }
 }
 
+/// libtorch's random generator is global: tests that seed it or sample actions from it hold this lock, so that one
+/// test's draws do not change another's episodes.
+static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn rng_lock() -> std::sync::MutexGuard<'static, ()> {
+    RNG.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("oneshot-test-eval-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -43,6 +51,7 @@ fn the_expert_places_and_the_random_policy_does_not() {
 
 #[test]
 fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
+    let _rng = rng_lock();
     let dir = scratch("repeat");
     let model = ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, ..ModelConfig::default() };
     tch::manual_seed(5);
@@ -71,6 +80,7 @@ fn evaluation_layouts_avoid_training_seeds() {
 
 #[test]
 fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head() {
+    let _rng = rng_lock();
     use oneshot_lab::eval::config::Control;
     use oneshot_lab::model::config::Architecture;
     let save = |name: &str, model: ModelConfig| {
