@@ -29,6 +29,28 @@ pub struct ResultRow {
     pub eval_keys: Vec<String>,
 }
 
+#[cfg(test)]
+impl ResultRow {
+    /// A trained model's row without results, for tests: `variant @ size` with its architecture and context.
+    pub fn model_for_test(variant: &str, size: usize, architecture: &str, context: &str) -> ResultRow {
+        ResultRow {
+            label: format!("{variant} @ {size}"),
+            policy: "model".into(),
+            size: Some(size),
+            variant: Some(variant.into()),
+            context: Some(context.into()),
+            architecture: Some(architecture.into()),
+            control: None,
+            seeds_done: 0,
+            seeds_total: 1,
+            pooled: None,
+            mean: None,
+            train_keys: Vec::new(),
+            eval_keys: Vec::new(),
+        }
+    }
+}
+
 /// The row label of a cell: `variant @ size` for a trained model, else the reference policy's name.
 fn label_of(c: &CellRecord) -> String {
     match (&c.variant, c.size) {

@@ -149,21 +149,7 @@ mod tests {
     use super::*;
 
     fn row(variant: &str, architecture: &str, context: &str) -> ResultRow {
-        ResultRow {
-            label: format!("{variant} @ 480"),
-            policy: "network".into(),
-            size: Some(480),
-            variant: Some(variant.into()),
-            context: Some(context.into()),
-            architecture: Some(architecture.into()),
-            control: None,
-            seeds_done: 0,
-            seeds_total: 1,
-            pooled: None,
-            mean: None,
-            train_keys: Vec::new(),
-            eval_keys: Vec::new(),
-        }
+        ResultRow::model_for_test(variant, 480, architecture, context)
     }
 
     #[test]

@@ -39,21 +39,7 @@ mod tests {
     use super::*;
 
     fn row(architecture: &str, control: Option<&str>, size: usize) -> ResultRow {
-        ResultRow {
-            label: format!("x @ {size}"),
-            policy: "model".into(),
-            size: Some(size),
-            variant: Some("x".into()),
-            context: Some("spread".into()),
-            architecture: Some(architecture.into()),
-            control: control.map(String::from),
-            seeds_done: 0,
-            seeds_total: 1,
-            pooled: None,
-            mean: None,
-            train_keys: Vec::new(),
-            eval_keys: Vec::new(),
-        }
+        ResultRow { control: control.map(String::from), ..ResultRow::model_for_test("x", size, architecture, "spread") }
     }
 
     #[test]
