@@ -37,19 +37,38 @@ fn largest_grad(vs: &nn::VarStore, prefix: &str) -> f64 {
 }
 
 #[test]
-fn the_inner_step_adapts_every_trunk_and_action_weight() {
+fn the_inner_step_adapts_every_trunk_and_action_weight_per_task() {
     tch::manual_seed(0);
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &tiny());
-    let context = Tensor::randn([4, 3, 32, 40], (Kind::Float, Device::Cpu));
+    let context = Tensor::randn([2, 4, 3, 32, 40], (Kind::Float, Device::Cpu));
     let adapted = daml.adapt(&context, true);
     let initial = daml.initial_weights();
     assert_eq!(adapted.len(), initial.len());
     for (k, (a, w)) in adapted.iter().zip(&initial).enumerate() {
-        assert!((a - w).abs().max().double_value(&[]) > 0.0, "weight {k} was not changed by the inner step");
+        assert_eq!(a.size()[0], 2, "weight {k} has one adapted copy per task");
+        for task in 0..2 {
+            let change = (a.get(task) - w).abs().max().double_value(&[]);
+            assert!(change > 0.0, "weight {k} of task {task} was not changed by the inner step");
+        }
     }
-    let other = daml.adapt(&Tensor::randn([4, 3, 32, 40], (Kind::Float, Device::Cpu)), true);
-    assert!((&other[0] - &adapted[0]).abs().max().double_value(&[]) > 0.0, "another demonstration adapts differently");
+    let between_tasks = (adapted[0].get(0) - adapted[0].get(1)).abs().max().double_value(&[]);
+    assert!(between_tasks > 0.0, "another demonstration adapts differently");
+}
+
+#[test]
+fn a_task_acts_the_same_alone_and_beside_another_task() {
+    tch::manual_seed(3);
+    let vs = nn::VarStore::new(Device::Cpu);
+    let daml = Daml::new(&vs.root(), &tiny());
+    let b = batch();
+    let together = daml.forward_t(&b.context, &b.agent, false).actions;
+    let alone = daml.forward_t(&b.context.narrow(0, 0, 1), &b.agent.narrow(0, 0, 1), false).actions;
+    let gap = (together.means.narrow(0, 0, 1) - &alone.means).abs().max().double_value(&[]);
+    assert!(gap < 1e-5, "task 0's actions depend on task 1 (largest difference {gap})");
+    let other = daml.forward_t(&b.context.narrow(0, 1, 1), &b.agent.narrow(0, 0, 1), false).actions;
+    let gap = (other.means - &alone.means).abs().max().double_value(&[]);
+    assert!(gap > 0.0, "another demonstration changes the actions");
 }
 
 #[test]

@@ -131,39 +131,56 @@ impl Daml {
         conv.chain(mlp).collect()
     }
 
-    /// Spatial-softmax features `[N, 2C]` of normalised images `[N, 3, H, W]` under `weights`.
-    fn embed(&self, weights: &[Tensor], images: &Tensor) -> Tensor {
-        let mut y = if self.channels_last {
-            images.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
-        } else {
-            images.shallow_clone()
-        };
+    /// Spatial-softmax features `[B, T, 2C]` of normalised frames `[B, T, 3, H, W]`, task `b` seen through its own
+    /// weights (`weights[k]` is `[B, ...]`, one copy per task). The tasks run as the groups of one grouped
+    /// convolution: frames become the batch, each task's channels one group.
+    fn embed(&self, weights: &[Tensor], frames: &Tensor) -> Tensor {
+        let &[b, t, c, h, w] = frames.size().as_slice() else { panic!("frames are [B, T, 3, H, W]") };
+        let mut y = frames.transpose(0, 1).reshape([t, b * c, h, w]);
+        if self.channels_last {
+            y = y.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2]);
+        }
         for (k, (spec, _)) in self.convs.iter().enumerate() {
-            y = y.conv2d(&weights[2 * k], Some(&weights[2 * k + 1]), [spec.stride], [1], [1], 1).relu();
+            let (kernel, bias) = (&weights[2 * k], &weights[2 * k + 1]);
+            let grouped = kernel.reshape([b * spec.output, spec.input, 3, 3]);
+            y = y.conv2d(&grouped, Some(&bias.reshape([-1])), [spec.stride], [1], [1], b).relu();
             if spec.pool {
                 y = y.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
             }
         }
-        spatial_softmax(&y)
+        let &[_, _, fh, fw] = y.size().as_slice() else { panic!("feature maps are 4-D") };
+        let maps = y.reshape([t, b, -1, fh, fw]).transpose(0, 1).reshape([b * t, -1, fh, fw]);
+        spatial_softmax(&maps).reshape([b, t, -1])
     }
 
-    /// The action MLP's output `[N, 50]` for features `[N, 2C]` under `weights`.
+    /// The action MLP's output `[B, T, 50]` for features `[B, T, 2C]`, each task under its own weights.
     fn act(&self, weights: &[Tensor], features: &Tensor) -> Tensor {
         let offset = 2 * self.convs.len();
         (0..self.action_mlp.len()).fold(features.shallow_clone(), |x, i| {
-            x.linear(&weights[offset + 2 * i], Some(&weights[offset + 2 * i + 1])).relu()
+            let (kernel, bias) = (&weights[offset + 2 * i], &weights[offset + 2 * i + 1]);
+            (x.matmul(&kernel.transpose(1, 2)) + bias.unsqueeze(1)).relu()
         })
     }
 
-    /// The weights after one inner step on the learned loss of one task's context frames `[Tc, 3, H, W]`. With
-    /// `second_order` (training), an outer loss differentiates through the step's gradient, which is how the
-    /// learned loss is trained; otherwise that gradient is a constant (first-order MAML: the outer gradient still
-    /// reaches the initial weights, never the learned loss).
+    /// Each task's weights (`[B, ...]` per parameter) after one inner step on the learned loss of its context
+    /// frames (`context` is `[B, Tc, 3, H, W]`). With `second_order` (training), an outer loss differentiates
+    /// through the step's gradient, which is how the learned loss is trained; otherwise that gradient is a constant
+    /// (first-order MAML: the outer gradient still reaches the initial weights, never the learned loss).
     pub fn adapt(&self, context: &Tensor, second_order: bool) -> Vec<Tensor> {
+        let tasks = context.size()[0];
         tch::with_grad(|| {
-            let weights = self.initial_weights();
+            let weights: Vec<Tensor> = self
+                .initial_weights()
+                .iter()
+                .map(|w| {
+                    let mut repeats = vec![tasks];
+                    repeats.extend(std::iter::repeat_n(1, w.dim()));
+                    w.unsqueeze(0).repeat(repeats.as_slice())
+                })
+                .collect();
             let features = self.embed(&weights, context);
-            let input = Tensor::cat(&[self.act(&weights, &features), features], -1).reshape([1, -1]);
+            let input = Tensor::cat(&[self.act(&weights, &features), features], -1).reshape([tasks, -1]);
+            // Tasks are independent, so the gradient of the summed loss is each task's own gradient.
             let loss = self.learned_loss.forward(&input).sum(Kind::Float);
             let grads = Tensor::run_backward(&[loss], &weights, second_order, second_order);
             weights
@@ -174,37 +191,14 @@ impl Daml {
         })
     }
 
-    /// Adapted weights for each task of a batch of contexts `[B, Tc, 3, H, W]`.
-    fn adapt_batch(&self, context: &Tensor, train: bool) -> Vec<Vec<Tensor>> {
-        (0..context.size()[0]).map(|b| self.adapt(&context.get(b), train)).collect()
-    }
-
-    /// Action distributions `[Ta, 8, mixtures]` and predicted grasp-and-drop positions `[6]` for one task's agent
-    /// frames `[Ta, 3, H, W]` under its adapted weights.
-    fn task_outputs(&self, weights: &[Tensor], agent: &Tensor) -> (MixtureParams, Tensor) {
-        let features = self.embed(weights, agent);
-        let actions = self.head.forward(&self.act(weights, &features));
-        let pose = self.pose[1].forward(&self.pose[0].forward(&features.narrow(0, 0, 1)).relu()).squeeze_dim(0);
-        (actions, pose)
-    }
-
-    /// Outputs for a batch, stacked: actions `[B, Ta, 8, mixtures]` and poses `[B, 6]`.
+    /// Action distributions `[B, Ta, 8, mixtures]` and predicted grasp-and-drop positions `[B, 6]` for contexts
+    /// `[B, Tc, 3, H, W]` and agent frames `[B, Ta, 3, H, W]`, each task under the weights adapted to its context.
     fn batch_outputs(&self, context: &Tensor, agent: &Tensor, train: bool) -> (MixtureParams, Tensor) {
-        let per_task: Vec<(MixtureParams, Tensor)> = self
-            .adapt_batch(context, train)
-            .iter()
-            .enumerate()
-            .map(|(b, w)| self.task_outputs(w, &agent.get(b as i64)))
-            .collect();
-        let stack = |f: fn(&MixtureParams) -> &Tensor| {
-            Tensor::stack(&per_task.iter().map(|(m, _)| f(m)).collect::<Vec<_>>(), 0)
-        };
-        let actions = MixtureParams {
-            means: stack(|m| &m.means),
-            log_scales: stack(|m| &m.log_scales),
-            logits: stack(|m| &m.logits),
-        };
-        let poses = Tensor::stack(&per_task.iter().map(|(_, p)| p).collect::<Vec<_>>(), 0);
+        let weights = self.adapt(context, train);
+        let features = self.embed(&weights, agent);
+        let actions = self.head.forward(&self.act(&weights, &features));
+        let first = features.select(1, 0);
+        let poses = self.pose[1].forward(&self.pose[0].forward(&first).relu());
         (actions, poses)
     }
 }
