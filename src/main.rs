@@ -29,6 +29,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Plan(a) => cli::orchestrate::plan(a),
         Command::Why(a) => cli::inspect::why(a),
         Command::Status(a) => cli::inspect::status(a),
+        Command::Cancel(a) => cli::orchestrate::cancel(a),
         Command::Query(a) => cli::inspect::query(a),
         Command::Gc(a) => cli::inspect::gc(a),
         Command::Report(a) => cli::inspect::report(a),

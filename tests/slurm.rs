@@ -1,7 +1,9 @@
 //! The Slurm executor against a real (one-node) Slurm: `scripts/slurm-one-node.sh` starts one; CI sets
 //! ONESHOT_REQUIRE_SLURM=1 so that a missing Slurm fails the test instead of skipping it.
 use rusqlite::Connection;
-use std::process::Command;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
 
 const EXPERIMENT: &str = r#"name = "tiny_slurm"
 [world.image]
@@ -32,26 +34,48 @@ fn slurm_up() -> bool {
     Command::new("sinfo").arg("-h").output().is_ok_and(|o| o.status.success())
 }
 
-#[test]
-fn stages_run_as_slurm_jobs_and_failed_jobs_are_recorded() {
-    if !slurm_up() {
-        assert!(std::env::var_os("ONESHOT_REQUIRE_SLURM").is_none(), "Slurm is required here but `sinfo` fails");
-        eprintln!("skipped: no Slurm on this machine (start one with scripts/slurm-one-node.sh)");
-        return;
+/// Whether Slurm answers; where it does not, a test is skipped unless ONESHOT_REQUIRE_SLURM is set.
+fn slurm_or_skip() -> bool {
+    if slurm_up() {
+        return true;
     }
-    let dir = std::env::temp_dir().join(format!("oneshot-test-slurm-{}", std::process::id()));
+    assert!(std::env::var_os("ONESHOT_REQUIRE_SLURM").is_none(), "Slurm is required here but `sinfo` fails");
+    eprintln!("skipped: no Slurm on this machine (start one with scripts/slurm-one-node.sh)");
+    false
+}
+
+/// A fresh folder holding the tiny experiment file, and its store path.
+fn workspace(name: &str) -> (PathBuf, PathBuf, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("oneshot-test-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("tiny.toml");
     std::fs::write(&file, EXPERIMENT).unwrap();
     let store = dir.join("runs");
-    let run = |extra: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_oneshot-lab"))
-            .args(["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1"])
-            .args(extra)
-            .output()
-            .unwrap()
-    };
+    (dir, file, store)
+}
+
+/// Runs `oneshot-lab COMMAND FILE --store STORE EXTRA...` (FILE left out where `file` is none).
+fn oneshot(command: &str, file: Option<&Path>, store: &Path, extra: &[&str]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_oneshot-lab"));
+    cmd.arg(command);
+    if let Some(f) = file {
+        cmd.arg(f);
+    }
+    cmd.arg("--store").arg(store).args(extra).output().unwrap()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+#[test]
+fn stages_run_as_slurm_jobs_and_failed_jobs_are_recorded() {
+    if !slurm_or_skip() {
+        return;
+    }
+    let (dir, file, store) = workspace("slurm");
+    let run = |extra: &[&str]| oneshot("run", Some(&file), &store, &[&["--workers", "1"], extra].concat());
     let out = run(&["--slurm", "--jobs", "2"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stdout).contains("5 stages run"));
@@ -71,8 +95,92 @@ fn stages_run_as_slurm_jobs_and_failed_jobs_are_recorded() {
     let bad = run(&["--slurm", "--force", "random/eval", "--slurm-arg=--partition=nowhere"]);
     assert!(!bad.status.success());
     let text = String::from_utf8_lossy(&bad.stdout);
-    assert!(text.contains("Slurm job") && text.contains("nowhere"), "{text}");
+    assert!(text.contains("Slurm refused") && text.contains("nowhere"), "{text}");
     let failed: i64 = db.query_row("SELECT COUNT(*) FROM stages WHERE status = 'failed'", [], |r| r.get(0)).unwrap();
     assert_eq!(failed, 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Counts of the store's stages by status, after `status` has caught up with the queue.
+fn caught_up(store: &Path) -> (String, i64, i64) {
+    let status = oneshot("status", None, store, &[]);
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    let db = Connection::open(store.join("oneshot.sqlite")).unwrap();
+    let count =
+        |s: &str| -> i64 { db.query_row("SELECT COUNT(*) FROM stages WHERE status = ?1", [s], |r| r.get(0)).unwrap() };
+    (stdout(&status), count("done"), count("failed"))
+}
+
+/// Calls `status` until `done` stages are done (at most five minutes).
+fn wait_until_done(store: &Path, done: i64) -> String {
+    let start = Instant::now();
+    loop {
+        let (text, n, _) = caught_up(store);
+        if n == done {
+            return text;
+        }
+        assert!(start.elapsed() < Duration::from_secs(300), "{n} of {done} stages done after 5 minutes: {text}");
+        std::thread::sleep(Duration::from_secs(2));
+    }
+}
+
+/// The Slurm job holding the running stage of `kind`.
+fn job_of(store: &Path, kind: &str) -> String {
+    let db = Connection::open(store.join("oneshot.sqlite")).unwrap();
+    db.query_row(
+        "SELECT a.pid FROM attempts a JOIN stages s ON s.key = a.stage_key \
+         WHERE a.status = 'running' AND a.host = 'slurm' AND s.kind = ?1",
+        [kind],
+        |r| r.get::<_, i64>(0),
+    )
+    .unwrap()
+    .to_string()
+}
+
+#[test]
+fn detached_runs_submit_chained_jobs_catch_up_resubmit_killed_jobs_and_cancel() {
+    if !slurm_or_skip() {
+        return;
+    }
+    let (dir, file, store) = workspace("slurm-detached");
+    let detach = |extra: &[&str]| {
+        oneshot("run", Some(&file), &store, &[&["--workers", "1", "--slurm", "--detach"], extra].concat())
+    };
+
+    // Every stage is submitted at once; the process returns before the jobs end, and `status` records them.
+    let out = detach(&[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout(&out).contains("5 Slurm jobs submitted"), "{}", stdout(&out));
+    wait_until_done(&store, 5);
+
+    // A killed job fails its stage, and the job waiting on it is cancelled; the next detached run resubmits both.
+    let out = detach(&["--force", "*/train", "--slurm-arg=--begin=now+1hour"]);
+    assert!(stdout(&out).contains("2 Slurm jobs submitted"), "{}", stdout(&out));
+    let killed = Command::new("scancel").arg(job_of(&store, "train")).status().unwrap();
+    assert!(killed.success());
+    let (text, _, failed) = caught_up(&store);
+    assert_eq!(failed, 2, "{text}");
+    assert!(text.contains("ended CANCELLED without results"), "{text}");
+    assert!(text.contains("a job it depended on failed"), "{text}");
+    let out = detach(&[]);
+    assert!(stdout(&out).contains("2 Slurm jobs submitted, 0 already queued, 3 stages cached"), "{}", stdout(&out));
+    wait_until_done(&store, 5);
+
+    // `cancel` stops an experiment's queued jobs and fails their stages.
+    let out = detach(&["--force", "random/eval", "--slurm-arg=--begin=now+1hour"]);
+    assert!(stdout(&out).contains("1 Slurm jobs submitted"), "{}", stdout(&out));
+    let job = job_of(&store, "eval");
+    let out = oneshot("cancel", Some(&file), &store, &[]);
+    assert!(stdout(&out).contains("1 Slurm jobs cancelled"), "{}", stdout(&out));
+    let queue = Command::new("squeue").args(["--noheader", "--format=%T", "--jobs", &job]).output().unwrap();
+    assert!(!stdout(&queue).contains("PENDING"), "job {job} still queued: {}", stdout(&queue));
+    let (text, done, failed) = caught_up(&store);
+    assert_eq!((done, failed), (4, 1), "{text}");
+    assert!(text.contains("cancelled by `oneshot-lab cancel`"), "{text}");
+
+    // A plain run picks up from there: only the cancelled stage runs, and the report is written.
+    let out = oneshot("run", Some(&file), &store, &["--workers", "1"]);
+    assert!(stdout(&out).contains("1 stages run, 4 cached"), "{}", stdout(&out));
+    assert!(store.join("reports/tiny_slurm/index.md").is_file());
     std::fs::remove_dir_all(&dir).unwrap();
 }

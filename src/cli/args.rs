@@ -38,8 +38,11 @@ pub enum Command {
     Plan(PlanArgs),
     /// Why a stage would run: its inputs against the nearest cached stage of its kind.
     Why(WhyArgs),
-    /// Stages by kind and status, running attempts and recent failures.
+    /// Stages by kind and status, running attempts and Slurm jobs, and recent failures (records what finished
+    /// Slurm jobs did).
     Status(StatusArgs),
+    /// Cancels the queued and running Slurm jobs of an experiment's stages.
+    Cancel(CancelArgs),
     /// A named summary (cells, stages, failures, curves) or raw SQL, read-only.
     Query(QueryArgs),
     /// Artifacts no given experiment file references (listed; removed with --delete).
@@ -322,6 +325,10 @@ pub struct RunArgs {
     /// Run each stage as a Slurm job (`sbatch --wait`); `--jobs` bounds jobs in flight.
     #[arg(long)]
     pub slurm: bool,
+    /// With --slurm: submit every stage at once, each job waiting on its upstream jobs, and exit; `status` and the
+    /// next `run` record what the jobs did, `cancel` stops them.
+    #[arg(long, requires = "slurm")]
+    pub detach: bool,
     /// Extra sbatch argument for every job (repeatable), e.g. --slurm-arg=--partition=cpu.
     #[arg(long = "slurm-arg", allow_hyphen_values = true)]
     pub slurm_args: Vec<String>,
@@ -364,6 +371,14 @@ pub struct WhyArgs {
 pub struct StatusArgs {
     #[arg(long, default_value = "runs")]
     pub store: PathBuf,
+}
+
+/// Arguments of the `cancel` command.
+#[derive(clap::Args)]
+pub struct CancelArgs {
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub store: StoreArgs,
 }
 
 /// Arguments of the `query` command.

@@ -5,6 +5,8 @@ use oneshot_lab::config::Experiment;
 use oneshot_lab::pipeline::gc::{remove_artifacts, unused_artifacts};
 use oneshot_lab::pipeline::graph::short;
 use oneshot_lab::pipeline::load_plan;
+use oneshot_lab::pipeline::slurm::detached;
+use oneshot_lab::pipeline::store::jobs::SLURM_HOST;
 use oneshot_lab::pipeline::store::read::StageRecord;
 use oneshot_lab::pipeline::store::{DATABASE, Store, now};
 use std::collections::{BTreeMap, BTreeSet};
@@ -83,12 +85,26 @@ pub fn why(a: WhyArgs) -> Result<()> {
 
 /// Prints stage counts by kind and status, running attempts and recent failures.
 pub fn status(a: StatusArgs) -> Result<()> {
-    let store = Store::open_existing(&a.store)?;
+    let mut store = Store::open_existing(&a.store)?;
     println!("store {}", a.store.join(DATABASE).display());
+    let slurm = detached::catch_up(&mut store, &a.store).unwrap_or_else(|e| {
+        println!("  warning: Slurm jobs not checked: {e:#}");
+        Default::default()
+    });
+    if !slurm.completed.is_empty() || !slurm.failed.is_empty() {
+        println!(
+            "  caught up with Slurm: {} jobs finished, {} ended without results",
+            slurm.completed.len(),
+            slurm.failed.len()
+        );
+    }
     for (kind, status, n) in store.stage_counts()? {
         println!("  {kind:<8} {status:<8} {n}");
     }
-    for r in store.running_attempts()? {
+    for (job, entry) in &slurm.live {
+        println!("  slurm: {}", detached::describe(job, entry));
+    }
+    for r in store.running_attempts()?.into_iter().filter(|r| r.host != SLURM_HOST) {
         println!(
             "  running: {} {} on {} pid {} for {:.0} s",
             r.kind,

@@ -1,12 +1,12 @@
 //! `run`, `run-stage` and `plan`: an experiment file against the results store.
-use super::args::{PlanArgs, RunArgs, RunStageArgs};
+use super::args::{CancelArgs, PlanArgs, RunArgs, RunStageArgs};
 use super::default_workers;
 use anyhow::{Result, bail};
 use oneshot_lab::config::{Experiment, Grid};
-use oneshot_lab::pipeline::graph::short;
+use oneshot_lab::pipeline::graph::{Plan, short};
 use oneshot_lab::pipeline::load_plan;
-use oneshot_lab::pipeline::scheduler::{RunOptions, display_name, run as run_plan};
-use oneshot_lab::pipeline::slurm::{SlurmOptions, run_stage as run_one_stage};
+use oneshot_lab::pipeline::scheduler::{RunOptions, RunReport, display_name, run as run_plan};
+use oneshot_lab::pipeline::slurm::{SlurmOptions, detached, run_stage as run_one_stage};
 use oneshot_lab::pipeline::stages::{self, collection_totals};
 use oneshot_lab::pipeline::store::{StageState, Store};
 
@@ -29,6 +29,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         gpus: a.gpus.iter().map(|g| format!("cuda:{g}")).collect(),
         workers: a.workers.unwrap_or_else(default_workers),
         progress: true,
+        detach: a.detach,
     };
     let root = &a.store.store;
     let report = run_plan(&plan, root, &opts)?;
@@ -49,6 +50,9 @@ pub fn run(a: RunArgs) -> Result<()> {
         profile,
         &plan.cells,
     )?;
+    if opts.detach {
+        return detached_summary(&experiment.name, &a, &report, &plan);
+    }
     println!(
         "{}: {} stages run, {} cached, {} failed, {} skipped",
         experiment.name,
@@ -67,6 +71,50 @@ pub fn run(a: RunArgs) -> Result<()> {
     }
     if !report.failed.is_empty() || !report.skipped.is_empty() {
         bail!("{} stages failed and {} were skipped; run again to retry", report.failed.len(), report.skipped.len());
+    }
+    Ok(())
+}
+
+/// What a detached run prints: the jobs it submitted and what to do next; an error if Slurm refused any.
+fn detached_summary(name: &str, a: &RunArgs, report: &RunReport, plan: &Plan) -> Result<()> {
+    let labels = plan.labels();
+    let plan_stage = |k: &String| display_name(&plan.stages[k], &labels);
+    println!(
+        "{name}: {} Slurm jobs submitted, {} already queued, {} stages cached, {} refused, {} held back",
+        report.submitted.len(),
+        report.queued.len(),
+        report.cached.len(),
+        report.failed.len(),
+        report.skipped.len()
+    );
+    for (k, job) in &report.submitted {
+        println!("  job {job}: {}", plan_stage(k));
+    }
+    for (k, e) in &report.failed {
+        println!("  refused {}: {e}", plan_stage(k));
+    }
+    let store = a.store.store.display();
+    let profile = a.store.profile.as_ref().map(|p| format!(" --profile {p}")).unwrap_or_default();
+    println!(
+        "follow with `oneshot-lab status --store {store}`; when the jobs are done, `oneshot-lab run {}{profile} \
+         --store {store}` records them and writes the report (`oneshot-lab cancel` stops them)",
+        a.file.display()
+    );
+    if !report.failed.is_empty() {
+        bail!("Slurm refused {} jobs; fix the cause and run again to submit them", report.failed.len());
+    }
+    Ok(())
+}
+
+/// Cancels the queued and running Slurm jobs of an experiment's stages and fails those stages.
+pub fn cancel(a: CancelArgs) -> Result<()> {
+    let (experiment, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
+    let mut store = Store::open_existing(&a.store.store)?;
+    let keys = plan.order.iter().cloned().collect();
+    let cancelled = detached::cancel(&mut store, &a.store.store, &keys)?;
+    println!("{}: {} Slurm jobs cancelled", experiment.name, cancelled.len());
+    for (k, job) in &cancelled {
+        println!("  job {job}: {}", display_name(&plan.stages[k], &plan.labels()));
     }
     Ok(())
 }

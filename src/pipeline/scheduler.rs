@@ -2,8 +2,9 @@
 //! that concurrent runs never execute a stage twice; a failure stops only the stages below it.
 use super::executor::{Executor, Local};
 use super::graph::{Plan, Stage, short};
-use super::slurm::{Slurm, SlurmOptions};
+use super::slurm::{Slurm, SlurmOptions, detached};
 use super::stages::StageOutputs;
+use super::store::jobs::SLURM_HOST;
 use super::store::{Claim, Holder, StageState, Store, now};
 use anyhow::Result;
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -30,6 +31,8 @@ pub struct RunOptions {
     pub progress: bool,
     /// Submit stages to Slurm instead of running them in this process.
     pub slurm: Option<SlurmOptions>,
+    /// With `slurm`: submit every stage at once, chained by dependencies, and return without waiting.
+    pub detach: bool,
 }
 
 /// What a run did.
@@ -42,6 +45,10 @@ pub struct RunReport {
     pub skipped: Vec<String>,
     /// What a dry run would execute.
     pub would_run: Vec<String>,
+    /// Stages a detached run submitted, with their Slurm job ids.
+    pub submitted: Vec<(String, u64)>,
+    /// Stages already held by a Slurm job of an earlier detached run.
+    pub queued: Vec<(String, u64)>,
 }
 
 /// `*` matches any run of characters; a pattern without `*` matches any label containing it.
@@ -78,7 +85,7 @@ fn labelled(labels: &BTreeMap<String, Vec<String>>, key: &str, pattern: &str) ->
 }
 
 /// The keys to consider: the matching cells' stages and all they depend on, in plan order.
-fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String, Vec<String>>) -> Vec<String> {
+pub(crate) fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String, Vec<String>>) -> Vec<String> {
     let Some(p) = only else { return plan.order.clone() };
     let mut want: HashSet<String> = plan.order.iter().filter(|k| labelled(labels, k, p)).cloned().collect();
     for k in plan.order.iter().rev() {
@@ -90,7 +97,7 @@ fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String, Vec<Strin
 }
 
 /// The stages `--force` re-runs: the matching ones and everything below them.
-fn forced(
+pub(crate) fn forced(
     plan: &Plan,
     keys: &[String],
     force: Option<&str>,
@@ -134,9 +141,15 @@ struct Scheduler<'a> {
     announced_waits: HashSet<String>,
 }
 
-/// What a run says when a stage it needs is being run by another process.
+/// What a run says when a stage it needs is being run by another process or a Slurm job.
 fn waiting_message(stage: &str, holder: &Holder) -> String {
     let since = (now() - holder.started_at).max(0.0);
+    if holder.host == SLURM_HOST {
+        return format!(
+            "waiting: {stage} is Slurm job {} (submitted {since:.0} s ago); this run goes on when it ends",
+            holder.pid
+        );
+    }
     format!(
         "waiting: {stage} is being run by pid {} on {} (started {since:.0} s ago); this run goes on when it ends",
         holder.pid, holder.host
@@ -254,6 +267,22 @@ impl Scheduler<'_> {
     }
 }
 
+/// How often a run waiting on Slurm jobs asks the queue about them.
+const SLURM_POLL: Duration = Duration::from_secs(15);
+
+/// Records what Slurm jobs of earlier detached runs did; without a reachable Slurm it says so and goes on (their
+/// stages stay held until a run that can see the queue catches up).
+fn catch_up_with_slurm(store: &mut Store, root: &Path) {
+    match detached::catch_up(store, root) {
+        Ok(c) => {
+            for (key, why) in &c.failed {
+                eprintln!("Slurm job of stage {} failed: {why}", short(key));
+            }
+        }
+        Err(e) => eprintln!("warning: could not catch up with Slurm jobs: {e:#}"),
+    }
+}
+
 /// Runs what is missing of `plan` against the store at `root`.
 pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
     let mut store = Store::open(root)?;
@@ -261,6 +290,18 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
     let keys = selected(plan, opts.only.as_deref(), &labels);
     let forced = forced(plan, &keys, opts.force.as_deref(), &labels);
     store.register(&keys.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
+    if let (Some(slurm), true, false) = (&opts.slurm, opts.detach, opts.dry_run) {
+        let s = detached::submit(plan, &mut store, root, slurm, opts.workers.max(1), &keys, &forced)?;
+        return Ok(RunReport {
+            cached: s.cached,
+            failed: s.refused,
+            skipped: s.held_back,
+            submitted: s.submitted,
+            queued: s.queued,
+            ..RunReport::default()
+        });
+    }
+    catch_up_with_slurm(&mut store, root);
     let jobs = opts.jobs.max(1);
     let executor: Arc<dyn Executor> = match &opts.slurm {
         Some(s) => Arc::new(Slurm { options: s.clone(), root: root.to_path_buf(), workers: opts.workers.max(1) }),
@@ -304,14 +345,19 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
         return Ok(s.report);
     }
     s.total = pending.len();
+    let mut last_catch_up = Instant::now();
     loop {
         let waiting_on_others = s.start_ready()?;
         if s.running == 0 && !waiting_on_others {
             break;
         }
-        // Wait for a stage of ours to finish, or poll stages that another process is running.
+        // Wait for a stage of ours to finish, or poll stages that another process or a Slurm job is running.
         if let Ok(finished) = s.rx.recv_timeout(Duration::from_secs(2)) {
             s.finish(finished)?;
+        }
+        if waiting_on_others && last_catch_up.elapsed() > SLURM_POLL {
+            catch_up_with_slurm(&mut s.store, root);
+            last_catch_up = Instant::now();
         }
     }
     Ok(s.report)

@@ -1,15 +1,20 @@
-//! The Slurm executor: each stage becomes `sbatch --wait` of this binary's `run-stage` command for the same
-//! experiment file. The job writes only artifacts (a shared filesystem is assumed); the submitting process keeps
-//! the SQLite store on its local disk and records the job's results when it ends.
+//! Stages as Slurm jobs. Each job runs this binary's `run-stage` command for the same experiment file and writes
+//! only artifacts (a shared filesystem is assumed): its published artifact folder and a results file that marks
+//! it complete. The submitting side keeps the SQLite store on its own disk and records a job's results when it
+//! learns that the job ended: at once with `sbatch --wait` ([`Slurm`]), or on a later `run`, `status` or
+//! `cancel` for detached submissions ([`detached`]).
+pub mod detached;
+pub mod queue;
+
 use super::executor::{Executor, Local, artifact_dir};
 use super::graph::{Plan, Stage, short};
-use super::stages::StageOutputs;
+use super::stages::{Kind, StageOutputs};
 use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-/// File in a stage's artifact folder holding what the job measured.
+/// File in a stage's artifact folder holding what the job measured; its presence marks the job complete.
 pub const RESULTS_FILE: &str = "stage-results.json";
 
 /// How to submit jobs.
@@ -24,17 +29,32 @@ pub struct SlurmOptions {
     pub gpu_args: Vec<String>,
 }
 
-/// Runs stages as Slurm jobs.
+/// What a job leaves in its artifact folder: which job it was (so that a later attempt's job is never mistaken for
+/// an earlier one's) and the stage's outputs.
+#[derive(Debug, Serialize, Deserialize)]
+struct JobResults {
+    job: Option<u64>,
+    outputs: StageOutputs,
+}
+
+/// Reads the results a job left for `stage_key`, if job `job` wrote them.
+fn results_of(root: &Path, kind: Kind, stage_key: &str, job: u64) -> Result<Option<StageOutputs>> {
+    let path = artifact_dir(root, kind, stage_key).join(RESULTS_FILE);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let results: JobResults = serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    Ok((results.job == Some(job)).then_some(results.outputs))
+}
+
+/// Runs stages as Slurm jobs, waiting for each (`sbatch --wait`).
 pub struct Slurm {
     pub options: SlurmOptions,
     /// The store folder, which the compute nodes must see.
     pub root: PathBuf,
     /// Simulation threads per job.
     pub workers: usize,
-}
-
-fn absolute(p: &Path) -> Result<PathBuf> {
-    std::path::absolute(p).with_context(|| format!("resolving {}", p.display()))
 }
 
 impl Executor for Slurm {
@@ -45,66 +65,29 @@ impl Executor for Slurm {
         _upstream: &HashMap<String, PathBuf>,
         _device: Option<String>,
     ) -> Result<(PathBuf, StageOutputs)> {
-        let opts = &self.options;
-        let exe = std::env::current_exe().context("locating this binary")?;
-        let root = absolute(&self.root)?;
-        let logs = root.join("logs");
-        std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
-        let name = format!("{}-{}", stage.kind().name(), short(&stage.key));
-        let log = logs.join(format!("{name}.log"));
-        let mut inner = vec![
-            exe.to_string_lossy().into_owned(),
-            "run-stage".into(),
-            absolute(&opts.file)?.to_string_lossy().into_owned(),
-            "--key".into(),
-            stage.key.clone(),
-            "--store".into(),
-            root.to_string_lossy().into_owned(),
-            "--workers".into(),
-            self.workers.to_string(),
-        ];
-        if let Some(p) = &opts.profile {
-            inner.extend(["--profile".into(), p.clone()]);
-        }
-        let wrap = inner.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" ");
-        let mut cmd = Command::new("sbatch");
-        cmd.args(["--parsable", "--wait", "--job-name"]).arg(format!("oneshot-{name}")).arg("--output").arg(&log);
-        cmd.args(&opts.args);
-        if stage.job.needs_gpu() {
-            cmd.args(&opts.gpu_args);
-        }
-        let out = cmd.arg("--wrap").arg(&wrap).output().context("running sbatch (is Slurm installed and up?)")?;
-        if !out.status.success() {
-            let tail: Vec<String> =
-                std::fs::read_to_string(&log).unwrap_or_default().lines().rev().take(5).map(String::from).collect();
-            bail!(
-                "Slurm job for stage {} failed ({}): {} (log: {})",
+        let job = queue::submit(stage, &self.options, &self.root, self.workers, &[], true)?;
+        let artifact = artifact_dir(&self.root, stage.kind(), &stage.key);
+        match results_of(&self.root, stage.kind(), &stage.key, job)? {
+            Some(outputs) => Ok((artifact, outputs)),
+            None => bail!(
+                "Slurm job {job} for stage {} ended without writing {} (log: {})",
                 short(&stage.key),
-                String::from_utf8_lossy(&out.stderr).trim(),
-                tail.into_iter().rev().collect::<Vec<_>>().join(" | "),
-                log.display()
-            );
+                artifact.join(RESULTS_FILE).display(),
+                queue::log_path(&self.root, stage.kind(), &stage.key, job).display()
+            ),
         }
-        let artifact = artifact_dir(&root, stage.kind(), &stage.key);
-        let path = artifact.join(RESULTS_FILE);
-        let text =
-            std::fs::read_to_string(&path).with_context(|| format!("reading {} written by the job", path.display()))?;
-        Ok((artifact, serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?))
     }
 }
 
 /// The job side: runs stage `key` of `plan` locally (its upstream artifacts found by key) and writes its results
-/// file into the published artifact folder.
+/// file, naming the Slurm job it ran in, into the published artifact folder.
 pub fn run_stage(plan: &Plan, key: &str, root: &Path, workers: usize) -> Result<()> {
     let stage = plan.stages.get(key).with_context(|| format!("stage {key} is not part of this experiment"))?;
     let upstream: HashMap<String, PathBuf> =
         stage.upstream.iter().map(|u| (u.clone(), artifact_dir(root, plan.stages[u].kind(), u))).collect();
     let local = Local { root: root.to_path_buf(), workers, progress: false };
     let (artifact, outputs) = local.execute(stage, &upstream, None)?;
-    crate::fsio::write_atomic(&artifact.join(RESULTS_FILE), serde_json::to_string(&outputs)?)
-}
-
-/// Single-quotes `s` for the shell that runs `--wrap`.
-fn shell_quote(s: &str) -> String {
-    format!("'{}'", s.replace('\'', "'\\''"))
+    let job = std::env::var("SLURM_JOB_ID").ok().and_then(|j| j.parse().ok());
+    let results = JobResults { job, outputs };
+    crate::fsio::write_atomic(&artifact.join(RESULTS_FILE), serde_json::to_string(&results)?)
 }

@@ -39,6 +39,11 @@ impl Kind {
         }
     }
 
+    /// The kind called `name` (as [`Kind::name`] spells it).
+    pub fn named(name: &str) -> Option<Kind> {
+        Kind::ALL.into_iter().find(|k| k.name() == name)
+    }
+
     /// The implementation version that goes into keys: bumped when a kind's results change for the same inputs.
     pub fn version(self) -> u32 {
         match self {

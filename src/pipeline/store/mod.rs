@@ -4,7 +4,8 @@
 //! - `stages(key, kind, version, inputs, upstream, status, artifact, created_at, finished_at, seconds)`:
 //!   one row per stage ever planned; `status` is `planned`, `running`, `done` or `failed`; `inputs` is the resolved
 //!   configuration (JSON) that went into the key, `upstream` a JSON array of upstream keys.
-//! - `attempts(id, stage_key, status, host, pid, started_at, finished_at, error)`: every execution of a stage.
+//! - `attempts(id, stage_key, status, host, pid, started_at, finished_at, error)`: every execution of a stage;
+//!   a detached Slurm job's attempt has `host = 'slurm'` and its job id as `pid`.
 //! - `experiments(name, file, description, profile, updated_at)` and
 //!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`;
 //!   `checkpoint_evals(experiment, cell, step, eval_key)`: a cell's evaluations of intermediate checkpoints.
@@ -14,6 +15,7 @@
 //! - `loss_curves(train_key, step, split, bc, inverse, point, total)`.
 //!
 //! Timestamps are Unix seconds.
+pub mod jobs;
 pub mod read;
 
 use super::graph::{PlannedCell, Stage};
