@@ -137,38 +137,79 @@ fn job_of(store: &Path, kind: &str) -> String {
     .to_string()
 }
 
+/// Waits (at most four minutes) until a training job has written a checkpoint into its staging folder.
+fn wait_for_checkpoint(store: &Path) {
+    let start = Instant::now();
+    let written = || {
+        std::fs::read_dir(store.join("artifacts/.staging")).into_iter().flatten().any(|e| {
+            let checkpoints = e.unwrap().path().join("checkpoints");
+            std::fs::read_dir(checkpoints).is_ok_and(|mut d| d.next().is_some())
+        })
+    };
+    while !written() {
+        assert!(start.elapsed() < Duration::from_secs(240), "the training job never checkpointed");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Every evaluation episode and collection metric of a store, keyed by stage, for comparing two stores.
+fn results(store: &Path) -> Vec<String> {
+    let db = Connection::open(store.join("oneshot.sqlite")).unwrap();
+    let mut q = db
+        .prepare(
+            "SELECT eval_key || ' ' || idx || ' ' || task || ' ' || agent_seed || ' ' || demo_seed || ' ' || reached \
+             || picked || placed || ' ' || steps FROM episodes \
+             UNION ALL SELECT stage_key || ' ' || name || ' ' || value FROM metrics \
+             WHERE stage_key IN (SELECT key FROM stages WHERE kind = 'collect') ORDER BY 1",
+        )
+        .unwrap();
+    q.query_map([], |r| r.get(0)).unwrap().map(Result::unwrap).collect()
+}
+
 #[test]
-fn detached_runs_submit_chained_jobs_catch_up_resubmit_killed_jobs_and_cancel() {
+fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_run() {
     if !slurm_or_skip() {
         return;
     }
     let (dir, file, store) = workspace("slurm-detached");
+    // Long enough training (100 steps, a checkpoint every 10) for its job to be killed while it runs.
+    let longer = EXPERIMENT
+        .replace("steps = 4\n", "steps = 100\ncheckpoint_interval = 10\n")
+        .replace("val_interval = 2\n", "val_interval = 50\n");
+    std::fs::write(&file, longer).unwrap();
     let detach = |extra: &[&str]| {
-        oneshot("run", Some(&file), &store, &[&["--workers", "1", "--slurm", "--detach"], extra].concat())
+        let out = oneshot("run", Some(&file), &store, &[&["--workers", "1", "--slurm", "--detach"], extra].concat());
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        stdout(&out)
     };
 
-    // Every stage is submitted at once; the process returns before the jobs end, and `status` records them.
-    let out = detach(&[]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(stdout(&out).contains("5 Slurm jobs submitted"), "{}", stdout(&out));
-    wait_until_done(&store, 5);
+    // Every stage is submitted at once, chained by dependencies; the command returns while the jobs run.
+    let text = detach(&[]);
+    assert!(text.contains("5 Slurm jobs submitted"), "{text}");
 
-    // A killed job fails its stage, and the job waiting on it is cancelled; the next detached run resubmits both.
-    let out = detach(&["--force", "*/train", "--slurm-arg=--begin=now+1hour"]);
-    assert!(stdout(&out).contains("2 Slurm jobs submitted"), "{}", stdout(&out));
-    let killed = Command::new("scancel").arg(job_of(&store, "train")).status().unwrap();
-    assert!(killed.success());
-    let (text, _, failed) = caught_up(&store);
-    assert_eq!(failed, 2, "{text}");
+    // Slurm kills the running training job: its stage fails, and the evaluation waiting on it is cancelled.
+    wait_for_checkpoint(&store);
+    assert!(Command::new("scancel").arg(job_of(&store, "train")).status().unwrap().success());
+    let start = Instant::now();
+    let text = loop {
+        let (text, _, failed) = caught_up(&store);
+        if failed == 2 {
+            break text;
+        }
+        assert!(start.elapsed() < Duration::from_secs(120), "{failed} stages failed: {text}");
+        std::thread::sleep(Duration::from_secs(2));
+    };
     assert!(text.contains("ended CANCELLED without results"), "{text}");
     assert!(text.contains("a job it depended on failed"), "{text}");
-    let out = detach(&[]);
-    assert!(stdout(&out).contains("2 Slurm jobs submitted, 0 already queued, 3 stages cached"), "{}", stdout(&out));
+
+    // The next detached run resubmits exactly those two (training resumes from its checkpoint).
+    let text = detach(&[]);
+    assert!(text.contains("2 Slurm jobs submitted"), "{text}");
     wait_until_done(&store, 5);
 
-    // `cancel` stops an experiment's queued jobs and fails their stages.
-    let out = detach(&["--force", "random/eval", "--slurm-arg=--begin=now+1hour"]);
-    assert!(stdout(&out).contains("1 Slurm jobs submitted"), "{}", stdout(&out));
+    // `cancel` stops an experiment's queued jobs and fails their stages; a detached run resubmits them.
+    let text = detach(&["--force", "random/eval", "--slurm-arg=--begin=now+1hour"]);
+    assert!(text.contains("1 Slurm jobs submitted"), "{text}");
     let job = job_of(&store, "eval");
     let out = oneshot("cancel", Some(&file), &store, &[]);
     assert!(stdout(&out).contains("1 Slurm jobs cancelled"), "{}", stdout(&out));
@@ -177,10 +218,16 @@ fn detached_runs_submit_chained_jobs_catch_up_resubmit_killed_jobs_and_cancel() 
     let (text, done, failed) = caught_up(&store);
     assert_eq!((done, failed), (4, 1), "{text}");
     assert!(text.contains("cancelled by `oneshot-lab cancel`"), "{text}");
+    detach(&[]);
+    wait_until_done(&store, 5);
 
-    // A plain run picks up from there: only the cancelled stage runs, and the report is written.
+    // A plain run on that store finds everything done and writes the report; the results equal a local run's.
     let out = oneshot("run", Some(&file), &store, &["--workers", "1"]);
-    assert!(stdout(&out).contains("1 stages run, 4 cached"), "{}", stdout(&out));
+    assert!(stdout(&out).contains("0 stages run, 5 cached"), "{}", stdout(&out));
     assert!(store.join("reports/tiny_slurm/index.md").is_file());
+    let local = dir.join("local");
+    let out = oneshot("run", Some(&file), &local, &["--workers", "1"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(results(&store), results(&local), "the detached store's results differ from a local run's");
     std::fs::remove_dir_all(&dir).unwrap();
 }
