@@ -430,6 +430,9 @@ pub struct BenchTrainArgs {
     /// Architectures to time, comma separated, or `all` (default: the configuration's, the transformer).
     #[arg(long)]
     pub architectures: Option<String>,
+    /// Number type of the forward pass: `fp32` or `bf16` (autocast), as `train.precision`.
+    #[arg(long, default_value = "fp32")]
+    pub precision: String,
 }
 
 /// Arguments of the `bench-eval` command.

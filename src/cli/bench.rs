@@ -15,7 +15,7 @@ use oneshot_lab::pipeline::stages::StageOutputs;
 use oneshot_lab::pipeline::store::{Claim, Store};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
-use oneshot_lab::train::config::LossWeights;
+use oneshot_lab::train::config::{LossWeights, Precision, TrainConfig, check_precision};
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained};
 use std::collections::HashSet;
 use std::time::Instant;
@@ -35,7 +35,12 @@ pub fn train(a: BenchTrainArgs) -> Result<()> {
         let names: Vec<&str> = ARCHITECTURES.iter().map(|r| r.name).collect();
         bail!("--architectures names `{unknown}`, which is not registered (all, {})", names.join(", "));
     }
-    bench_train(&c, a.steps.max(1), &a.device, &architectures)
+    let precision = match a.precision.as_str() {
+        "fp32" => Precision::Fp32,
+        "bf16" => Precision::Bf16,
+        other => bail!("--precision {other}: expected fp32 or bf16"),
+    };
+    bench_train(&c, a.steps.max(1), &a.device, &architectures, precision)
 }
 
 /// `bench-eval`: rollouts per second of a small network and of the random policy.
@@ -120,24 +125,41 @@ fn reset_peak_rss() -> bool {
 
 /// Times `steps` full training steps of each architecture, then the ResNet-18 trunk's forward + backward on the
 /// same frames.
-fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[String]) -> Result<()> {
+fn bench_train(
+    c: &BenchConfig,
+    steps: usize,
+    device: &str,
+    architectures: &[String],
+    precision: Precision,
+) -> Result<()> {
     let device = parse_device(device)?;
     tch::manual_seed(0);
     let batch = synthetic_batch(c, device);
     let frames = c.batch * (c.model.context_len() + c.model.agent_frames);
     println!(
-        "training benchmark `{}`: {}x{} frames, batch {} ({} frames per step), backbone width {}, device {:?}",
-        c.name, c.image.height, c.image.width, c.batch, frames, c.model.backbone_width, device
+        "training benchmark `{}`: {}x{} frames, batch {} ({} frames per step), backbone width {}, device {:?}, {:?}",
+        c.name, c.image.height, c.image.width, c.batch, frames, c.model.backbone_width, device, precision
     );
     println!("  {:<18} {:>12} {:>10} {:>9} {:>12}", "architecture", "parameters", "s/step", "steps/s", "peak memory");
     let weights = LossWeights::default();
     for name in architectures {
         let model = ModelConfig { architecture: Architecture::named(name), ..c.model.clone() };
+        let train = TrainConfig { precision, ..TrainConfig::default() };
+        if let Err(e) = check_precision(&model, &train) {
+            println!("  {name:<18} skipped: {e}");
+            continue;
+        }
         let (vs, policy) = build_policy(&model, device)?;
         let parameters: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
         let mut opt = nn::Adam::default().build(&vs, 5e-4)?;
         let fresh_peak = reset_peak_rss();
-        let s = seconds_per_step(steps, device, || opt.backward_step(&weights.total(&policy.losses(&batch, true))));
+        let s = seconds_per_step(steps, device, || {
+            let total = {
+                let _precision = precision.scope(device);
+                weights.total(&policy.losses(&batch, true))
+            };
+            opt.backward_step(&total)
+        });
         let memory = match (device, peak_rss_kb()) {
             (Device::Cpu, Some(kb)) if fresh_peak => format!("{:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
             (Device::Cpu, Some(kb)) => format!("<= {:.2} GiB", kb as f64 / (1024.0 * 1024.0)),

@@ -313,7 +313,8 @@ impl CellConfig {
         self.model.validate()?;
         self.train.validate()?;
         self.eval.validate()?;
-        crate::train::config::check_heads(&self.model, &self.train)
+        crate::train::config::check_heads(&self.model, &self.train)?;
+        crate::train::config::check_precision(&self.model, &self.train)
     }
 
     /// Reads a file of sections (`[world]`, `[collect]`, `[model]`, `[train]`, `[eval]`; all optional, the

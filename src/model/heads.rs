@@ -126,8 +126,10 @@ impl PolicyHeads {
 
 /// Mean negative log-likelihood of targets `[B, 2]` under the predicted Gaussians.
 pub fn point_nll(p: &PointPrediction, target: &Tensor) -> Tensor {
-    let d = target - &p.mean;
-    let (a, c, b) = (p.cholesky.select(1, 0), p.cholesky.select(1, 1), p.cholesky.select(1, 2));
+    // In fp32 whatever the forward pass ran in.
+    let (mean, cholesky) = (p.mean.to_kind(Kind::Float), p.cholesky.to_kind(Kind::Float));
+    let d = target - &mean;
+    let (a, c, b) = (cholesky.select(1, 0), cholesky.select(1, 1), cholesky.select(1, 2));
     let z1 = d.select(1, 0) / &a;
     let z2 = (d.select(1, 1) - &c * &z1) / &b;
     let nll = (z1.square() + z2.square()) * 0.5 + a.log() + b.log() + (2.0 * std::f64::consts::PI).ln();

@@ -68,10 +68,13 @@ impl MixtureHead {
 
 /// Negative log-likelihood of targets `x` (`[.., dims]`, in [-1, 1]) under the mixture, averaged over all entries.
 pub fn mixture_nll(p: &MixtureParams, x: &Tensor, spec: MixtureSpec) -> Tensor {
+    // In fp32 whatever the forward pass ran in: bins are 1/255 wide, finer than bf16 resolves near 1.
+    let (means, log_scales, logits) =
+        (p.means.to_kind(Kind::Float), p.log_scales.to_kind(Kind::Float), p.logits.to_kind(Kind::Float));
     let half_bin = 1.0 / (spec.bins as f64 - 1.0);
     let x = x.unsqueeze(-1);
-    let log_scales = p.log_scales.clamp_min(spec.log_scale_min);
-    let centered = &x - &p.means;
+    let log_scales = log_scales.clamp_min(spec.log_scale_min);
+    let centered = &x - &means;
     let inv_s = (-&log_scales).exp();
     let plus_in = &inv_s * (&centered + half_bin);
     let min_in = &inv_s * (&centered - half_bin);
@@ -87,7 +90,7 @@ pub fn mixture_nll(p: &MixtureParams, x: &Tensor, spec: MixtureSpec) -> Tensor {
         .where_self(&cdf_delta.gt(1e-5), &(log_pdf_mid - ((spec.bins as f64 - 1.0) / 2.0).ln()));
     let upper = log_one_minus_cdf_min.where_self(&x.gt(0.999), &interior);
     let log_probs = log_cdf_plus.where_self(&x.lt(-0.999), &upper);
-    let mixed = (log_probs + p.logits.log_softmax(-1, Kind::Float)).logsumexp([-1], false);
+    let mixed = (log_probs + logits.log_softmax(-1, Kind::Float)).logsumexp([-1], false);
     -mixed.mean(Kind::Float)
 }
 

@@ -376,6 +376,13 @@ mod tests {
     }
 
     #[test]
+    fn the_waiting_message_names_a_slurm_job_by_its_id() {
+        let holder = super::Holder { host: super::SLURM_HOST.into(), pid: 812, started_at: super::now() - 30.0 };
+        let m = super::waiting_message("n32-full-s0/eval", &holder);
+        assert!(m.starts_with("waiting: n32-full-s0/eval is Slurm job 812 (submitted 3"), "{m}");
+    }
+
+    #[test]
     fn patterns_match_substrings_and_globs() {
         assert!(matches("n480", "n480-full-s0/train"));
         assert!(matches("n480-*-s1/eval", "n480-no_point-s1/eval"));

@@ -51,6 +51,29 @@ pub enum MemoryFormat {
     ChannelsLast,
 }
 
+/// The number type of the forward pass.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Precision {
+    /// Everything in fp32 (the authors').
+    #[default]
+    Fp32,
+    /// bf16 autocast: matrix products and convolutions in bf16, weights, gradients and the optimiser in fp32.
+    Bf16,
+}
+
+impl Precision {
+    /// Whether this is fp32 (then it is left out of stage keys, which predate the option).
+    pub fn is_fp32(&self) -> bool {
+        *self == Precision::Fp32
+    }
+
+    /// The autocast scope this precision needs on `device`, if any.
+    pub fn scope(self, device: Device) -> Option<super::autocast::Autocast> {
+        (self == Precision::Bf16).then(|| super::autocast::Autocast::bf16(device))
+    }
+}
+
 /// How to train.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -66,6 +89,9 @@ pub struct TrainConfig {
     pub device: String,
     /// Layout of the trunk's image tensors (an execution detail like `device`: not part of a stage's key).
     pub memory_format: MemoryFormat,
+    /// Number type of the forward pass (changes results slightly, so it is part of a stage's key unless fp32).
+    #[serde(skip_serializing_if = "Precision::is_fp32")]
+    pub precision: Precision,
     /// Steps between validation passes (and loss-curve points).
     pub val_interval: u64,
     /// Fixed validation batches per pass.
@@ -95,6 +121,7 @@ impl Default for TrainConfig {
             seed: 0,
             device: "auto".into(),
             memory_format: MemoryFormat::Contiguous,
+            precision: Precision::Fp32,
             val_interval: 1000,
             val_batches: 4,
             checkpoint_interval: 2000,
@@ -156,6 +183,19 @@ impl TrainConfig {
     pub fn device(&self) -> Result<Device> {
         crate::device::parse_device(&self.device)
     }
+}
+
+/// Checks that the architecture trains faithfully at `train.precision`.
+pub fn check_precision(model: &ModelConfig, train: &TrainConfig) -> Result<()> {
+    let supported = model.architecture.registration().is_none_or(|r| r.bf16);
+    if train.precision == Precision::Bf16 && !supported {
+        bail!(
+            "train.precision = \"bf16\" is not supported by model.architecture = {:?}: its meta-learning step is \
+             not faithful in bf16; use \"fp32\"",
+            model.architecture.0
+        );
+    }
+    Ok(())
 }
 
 /// Checks that every weighted loss has a head in the architecture (the Contextual-LSTM has only the action head).

@@ -1,6 +1,7 @@
 //! Training the policy: Adam on BC + inverse-dynamics + point losses, validation at fixed intervals,
 //! checkpoints with resume, and a loss curve.
 pub mod adam;
+pub mod autocast;
 pub mod checkpoint;
 pub mod config;
 pub mod curve;
@@ -139,6 +140,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     model.validate()?;
     config.validate()?;
     config::check_heads(model, config)?;
+    config::check_precision(model, config)?;
     let device = config.device()?;
     let data = Arc::new(PairDataset::open(run.demo_dir, run.agent_dir, config.val_fraction, run.per_task)?);
     data.check_fits(model)?;
@@ -190,7 +192,11 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         tch::manual_seed(derive_seed("dropout", &[config.seed, step]) as i64);
         opt.set_lr(config.lr_at(step));
         let batch: Batch = loader.next_batch()?;
-        let l = policy.losses(&batch.to_device(model, h, w, device), true);
+        let batch = batch.to_device(model, h, w, device);
+        let l = {
+            let _precision = config.precision.scope(device);
+            policy.losses(&batch, true)
+        };
         let total = config.loss.total(&l);
         opt.backward_step(&total);
         window.add(&l, &total);

@@ -18,6 +18,7 @@ pub const CONV: Registration = Registration {
     description: "architecture ablation: small 4-layer 32-channel conv net + spatial softmax + MLPs, no attention",
     auxiliary_heads: true,
     pose_head: false,
+    bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, false)),
 };
 
@@ -27,6 +28,7 @@ pub const CONV_LSTM: Registration = Registration {
     description: "architecture ablation: the small conv net with an LSTM over context and agent frames",
     auxiliary_heads: true,
     pose_head: false,
+    bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, true)),
 };
 
@@ -36,6 +38,7 @@ pub const RESNET: Registration = Registration {
     description: "architecture ablation: ResNet-18 + spatial softmax + MLPs, no attention",
     auxiliary_heads: true,
     pose_head: false,
+    bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, false)),
 };
 
@@ -45,6 +48,7 @@ pub const RESNET_LSTM: Registration = Registration {
     description: "architecture ablation: ResNet-18 with an LSTM over context and agent frames",
     auxiliary_heads: true,
     pose_head: false,
+    bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, true)),
 };
 

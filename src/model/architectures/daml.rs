@@ -20,6 +20,9 @@ pub const DAML: Registration = Registration {
     description: "the DAML baseline: MAML with a learned inner loss over the demonstration, and a grasp/drop head",
     auxiliary_heads: false,
     pose_head: true,
+    // Its inner gradient step carries bf16 rounding into the adapted weights: the outer gradient turns away from
+    // fp32's (tests/precision.rs measured a cosine of 0.4).
+    bf16: false,
     build: |vs, config| Box::new(Daml::new(vs, config)),
 };
 
@@ -232,7 +235,7 @@ impl PolicyNet for Daml {
             bc: mixture_nll(&acted, &batch.actions, spec),
             inverse: zero(),
             point: zero(),
-            pose: poses.mse_loss(&batch.poses, Reduction::Mean),
+            pose: poses.to_kind(Kind::Float).mse_loss(&batch.poses, Reduction::Mean),
         }
     }
 

@@ -18,6 +18,7 @@ pub const CONTEXTUAL_LSTM: Registration = Registration {
     description: "the Contextual-LSTM baseline: encoder and decoder LSTMs over frame embeddings",
     auxiliary_heads: true,
     pose_head: false,
+    bf16: true,
     build: |vs, config| Box::new(ContextualLstm::new(vs, config)),
 };
 

@@ -19,6 +19,8 @@ pub struct Registration {
     pub auxiliary_heads: bool,
     /// Whether it predicts the grasp and drop positions (what `eval.control = "scripted_poses"` executes).
     pub pose_head: bool,
+    /// Whether it trains faithfully under bf16 autocast (`train.precision = "bf16"`).
+    pub bf16: bool,
     pub build: fn(&nn::Path, &ModelConfig) -> Box<dyn PolicyNet>,
 }
 
