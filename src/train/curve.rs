@@ -35,6 +35,13 @@ pub fn read(path: &Path, max_step: u64) -> Result<Vec<CurvePoint>> {
     Ok(points)
 }
 
+/// The curve a run starting after step `start` continues: the points up to `start` (its validation at `start`
+/// included), or none when it starts afresh, whose step-0 validation is measured again. A staging folder may hold
+/// the curve of an earlier attempt that stopped before its first checkpoint.
+pub fn resumed(path: &Path, start: u64) -> Result<Vec<CurvePoint>> {
+    if start == 0 { Ok(Vec::new()) } else { read(path, start) }
+}
+
 /// Rewrites the curve at `path` atomically.
 pub fn write(path: &Path, points: &[CurvePoint]) -> Result<()> {
     let mut text = String::new();
@@ -43,4 +50,23 @@ pub fn write(path: &Path, points: &[CurvePoint]) -> Result<()> {
         text.push('\n');
     }
     crate::fsio::write_atomic(path, text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(step: u64, split: &str) -> CurvePoint {
+        CurvePoint { step, split: split.into(), bc: 1.0, inverse: 0.0, point: 0.0, total: 1.0 }
+    }
+
+    #[test]
+    fn a_fresh_start_drops_an_earlier_attempts_points_and_a_resume_keeps_those_up_to_its_step() {
+        let path = std::env::temp_dir().join(format!("oneshot-curve-{}.jsonl", std::process::id()));
+        write(&path, &[point(0, "val"), point(10, "train"), point(10, "val"), point(20, "train")]).unwrap();
+        assert!(resumed(&path, 0).unwrap().is_empty(), "step 0's validation is measured again");
+        let kept: Vec<(u64, String)> = resumed(&path, 10).unwrap().into_iter().map(|p| (p.step, p.split)).collect();
+        assert_eq!(kept, [(0, "val".into()), (10, "train".into()), (10, "val".into())]);
+        std::fs::remove_file(&path).unwrap();
+    }
 }

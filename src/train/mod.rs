@@ -161,7 +161,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         None => 0,
     };
     let curve_path = run.out.join(CURVE_FILE);
-    let mut curve = curve::read(&curve_path, start)?;
+    let mut curve = curve::resumed(&curve_path, start)?;
     let (h, w) = (data.height, data.width);
     let val: Vec<DeviceBatch> = (0..config.val_batches)
         .map(|k| {
