@@ -65,10 +65,12 @@ fn a_task_acts_the_same_alone_and_beside_another_task() {
     let together = daml.forward_t(&b.context, &b.agent, false).actions;
     let alone = daml.forward_t(&b.context.narrow(0, 0, 1), &b.agent.narrow(0, 0, 1), false).actions;
     let gap = (together.means.narrow(0, 0, 1) - &alone.means).abs().max().double_value(&[]);
-    assert!(gap < 1e-5, "task 0's actions depend on task 1 (largest difference {gap})");
+    // Grouped and single-group convolutions round differently (about 1e-5 after the inner step); a leak between
+    // tasks would move the actions by orders of magnitude more.
+    assert!(gap < 1e-4, "task 0's actions depend on task 1 (largest difference {gap})");
     let other = daml.forward_t(&b.context.narrow(0, 1, 1), &b.agent.narrow(0, 0, 1), false).actions;
     let gap = (other.means - &alone.means).abs().max().double_value(&[]);
-    assert!(gap > 0.0, "another demonstration changes the actions");
+    assert!(gap > 1e-3, "another demonstration changes the actions (by {gap}), well beyond rounding");
 }
 
 #[test]
