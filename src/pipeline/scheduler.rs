@@ -85,7 +85,7 @@ fn labelled(labels: &BTreeMap<String, Vec<String>>, key: &str, pattern: &str) ->
 }
 
 /// The keys to consider: the matching cells' stages and all they depend on, in plan order.
-pub(crate) fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String, Vec<String>>) -> Vec<String> {
+fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String, Vec<String>>) -> Vec<String> {
     let Some(p) = only else { return plan.order.clone() };
     let mut want: HashSet<String> = plan.order.iter().filter(|k| labelled(labels, k, p)).cloned().collect();
     for k in plan.order.iter().rev() {
@@ -97,7 +97,7 @@ pub(crate) fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String
 }
 
 /// The stages `--force` re-runs: the matching ones and everything below them.
-pub(crate) fn forced(
+fn forced(
     plan: &Plan,
     keys: &[String],
     force: Option<&str>,
