@@ -104,10 +104,11 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
     use oneshot_lab::pipeline::stages::{Job, collection_totals, plan};
     let dir = scratch("nested");
     let file = dir.join("sizes.toml");
-    let text = "[world]\nimage = { height = 32, width = 40 }\n[collect]\ntasks = [0, 6]\n[grid]\nsizes = [32, 48]\n";
+    let text = "[world]\nimage = { height = 32, width = 40 }\n[collect]\ntasks = [0, 6]\n[grid]\nsizes = [4, 6]\n";
     std::fs::write(&file, text).unwrap();
 
-    // One collection per robot, of 3 slots per task; the 32 cell's training names the 2 slots it uses.
+    // A size spreads over the collected tasks: 4 and 6 trajectories of 2 tasks are 2 and 3 slots per task.
+    // One collection per robot, of 3 slots per task; the smaller cell's training names the 2 slots it uses.
     let experiment = Experiment::load(&file, None).unwrap();
     let nested = plan(&experiment);
     assert_eq!(collection_totals(&nested), (2, 2 * 3 * 2), "one collection per robot, 3 slots of 2 tasks each");
@@ -115,7 +116,7 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
         let c = nested.cells.iter().find(|c| c.name.starts_with(cell)).unwrap();
         &nested.stages[c.train.as_ref().unwrap()]
     };
-    let (small, large) = (train_of("n32"), train_of("n48"));
+    let (small, large) = (train_of("n4-"), train_of("n6-"));
     assert_eq!(small.inputs["per_task"], 2);
     assert!(large.inputs.get("per_task").is_none(), "the largest size uses the whole collection");
     assert_eq!(small.upstream, large.upstream, "both train on the same collections");

@@ -301,6 +301,10 @@ fn malformed_experiment_files_name_file_line_and_key() {
     let cases = [
         ("[train]\nsteps = 10\n\nlearnin_rate = 0.1\n", &["bad.toml", "line 4", "learnin_rate"][..]),
         ("[grid]\nsizes = [100]\n", &["bad.toml", "grid.sizes", "100"][..]),
+        (
+            "[collect]\ntasks = [0, 1, 2]\n[grid]\nsizes = [32]\n",
+            &["bad.toml", "grid.sizes", "32", "collect.tasks"][..],
+        ),
         ("[grid]\nvariants = [\"full\", \"nope\"]\n", &["bad.toml", "nope"][..]),
         ("[variants.x]\ntrain.lr = -1.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "variant `x`", "train.lr"][..]),
         ("[variants.x]\ntrain.los.inverse = 0.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "line 2", "los"][..]),

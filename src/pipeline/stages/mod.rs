@@ -10,7 +10,6 @@ use super::graph::{Plan, PlannedCell};
 use crate::config::Experiment;
 use crate::eval::EpisodeResult;
 use crate::sim::robot::Robot;
-use crate::sim::task::NUM_TASKS;
 use crate::train::curve::CurvePoint;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
@@ -196,13 +195,13 @@ pub fn plan(experiment: &Experiment) -> Plan {
     let collection_of = |c: &crate::config::CellConfig| serde_json::json!([c.world, c.collect]).to_string();
     let mut largest: HashMap<String, usize> = HashMap::new();
     for cell in &experiment.cells {
-        let per_task = cell.size / NUM_TASKS;
+        let per_task = cell.per_task();
         let entry = largest.entry(collection_of(&cell.config)).or_insert(per_task);
         *entry = (*entry).max(per_task);
     }
     for cell in &experiment.cells {
         let c = &cell.config;
-        let per_task = cell.size / NUM_TASKS;
+        let per_task = cell.per_task();
         let collected = if experiment.grid.nested { largest[&collection_of(c)] } else { per_task };
         let demos = collect::add(&mut plan, Robot::Sawyer, collected, c);
         let agents = collect::add(&mut plan, Robot::Panda, collected, c);
