@@ -37,5 +37,6 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::BenchTrain(a) => cli::bench::train(a),
         Command::BenchEval(a) => cli::bench::eval(a),
         Command::BenchPlan(a) => cli::bench::plan(a),
+        Command::BenchLoader(a) => cli::bench::loader(a),
     }
 }

@@ -146,3 +146,34 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
     assert!(err.to_string().contains("fewer than the 4 asked for"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_same_batches() {
+    use oneshot_lab::data::augment::Augmentation;
+    use oneshot_lab::data::loader::build_batch;
+    use oneshot_lab::data::pairs::{PairDataset, Split};
+    use oneshot_lab::data::throughput::measure;
+    use oneshot_lab::model::config::ModelConfig;
+    let dir = scratch("loader");
+    for robot in [Robot::Sawyer, Robot::Panda] {
+        collect(&tiny(robot, vec![0, 6], 2), &dir.join(robot.to_string()), 2, false).unwrap();
+    }
+    let open = || PairDataset::open(&dir.join("sawyer"), &dir.join("panda"), 0.1, None).unwrap();
+    let (held, mut on_use) = (open(), open());
+    on_use.decode_on_use();
+    assert!(held.frames_in_memory() && !on_use.frames_in_memory());
+    let (model, aug) = (ModelConfig::default(), Augmentation::default());
+    let a = build_batch(&held, Split::Train, &model, 4, 7, 3, Some(&aug)).unwrap();
+    let b = build_batch(&on_use, Split::Train, &model, 4, 7, 3, Some(&aug)).unwrap();
+    assert_eq!((a.context, a.agent, a.actions), (b.context, b.agent, b.actions));
+
+    for threads in [1, 2] {
+        let rate = measure(&on_use, &model, 4, 3, threads, Some(&aug), tch::Device::Cpu).unwrap();
+        assert_eq!((rate.batch_size, rate.batches, rate.threads), (4, 3, threads));
+        assert!(rate.build_seconds > 0.0 && rate.copy_seconds > 0.0, "{rate:?}");
+        assert!(rate.samples_per_second() > rate.delivered_per_second(), "{rate:?}");
+    }
+    let err = measure(&held, &model, 4, 0, 1, None, tch::Device::Cpu).unwrap_err();
+    assert!(err.to_string().contains("number of batches"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

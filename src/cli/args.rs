@@ -55,6 +55,8 @@ pub enum Command {
     BenchEval(BenchEvalArgs),
     /// Time of `plan` and of a fully cached `run` over a large grid.
     BenchPlan(BenchPlanArgs),
+    /// Training samples/s the data path builds from two collections and copies to the device.
+    BenchLoader(BenchLoaderArgs),
     /// A PNG of first frames of several instances for both robots.
     ContactSheet(ContactSheetArgs),
 }
@@ -444,6 +446,34 @@ pub struct BenchEvalArgs {
     pub horizon: usize,
     #[arg(long)]
     pub workers: Option<usize>,
+}
+
+/// Arguments of the `bench-loader` command.
+#[derive(clap::Args)]
+pub struct BenchLoaderArgs {
+    /// Demonstrator collection folder.
+    #[arg(long)]
+    pub demos: PathBuf,
+    /// Agent collection folder.
+    #[arg(long)]
+    pub agents: PathBuf,
+    #[arg(long, default_value_t = 30)]
+    pub batch: usize,
+    /// Batches timed (after one warm-up batch).
+    #[arg(long, default_value_t = 20)]
+    pub batches: usize,
+    /// Threads building each batch (default: CPU cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Build batches without augmentation.
+    #[arg(long)]
+    pub no_augment: bool,
+    /// Decode each frame's JPEG when it is used, as a dataset too large to hold decoded does.
+    #[arg(long)]
+    pub decode_on_use: bool,
+    /// Where batches are copied: `auto`, `cpu`, `cuda` or `cuda:N`.
+    #[arg(long, default_value = "auto")]
+    pub device: String,
 }
 
 /// Arguments of the `bench-plan` command.

@@ -1,9 +1,12 @@
-//! Benchmarks that print figures: training step rate and memory beside the trunk alone, evaluation rollouts per
-//! second, and the orchestrator's overhead on a large cached grid.
-use super::args::{BenchEvalArgs, BenchPlanArgs, BenchTrainArgs};
+//! Benchmarks that print figures: training step rate and memory beside the trunk alone, the data path's samples
+//! per second, evaluation rollouts per second, and the orchestrator's overhead on a large cached grid.
+use super::args::{BenchEvalArgs, BenchLoaderArgs, BenchPlanArgs, BenchTrainArgs};
 use super::default_workers;
 use anyhow::{Context, Result, bail};
+use oneshot_lab::data::augment::Augmentation;
 use oneshot_lab::data::loader::DeviceBatch;
+use oneshot_lab::data::pairs::PairDataset;
+use oneshot_lab::data::throughput;
 use oneshot_lab::device::parse_device;
 use oneshot_lab::eval::rollout::rollouts;
 use oneshot_lab::eval::{EvalConfig, EvalOutput, Policy};
@@ -51,6 +54,44 @@ pub fn eval(a: BenchEvalArgs) -> Result<()> {
 /// `bench-plan`: the orchestrator's overhead on a large cached grid.
 pub fn plan(a: BenchPlanArgs) -> Result<()> {
     bench_plan(a.cells.max(1))
+}
+
+/// `bench-loader`: training samples/s the data path builds from two collections and copies to the device.
+pub fn loader(a: BenchLoaderArgs) -> Result<()> {
+    let device = parse_device(&a.device)?;
+    let threads = a.threads.unwrap_or_else(default_workers);
+    let opened = Instant::now();
+    let mut data = PairDataset::open(&a.demos, &a.agents, TrainConfig::default().val_fraction, None)?;
+    let open_seconds = opened.elapsed().as_secs_f64();
+    if a.decode_on_use {
+        data.decode_on_use();
+    }
+    let model = ModelConfig::default();
+    let augmentation = Augmentation::default();
+    let augment = (!a.no_augment).then_some(&augmentation);
+    let rate = throughput::measure(&data, &model, a.batch, a.batches, threads, augment, device)?;
+    let frames = a.batch * (model.context_len() + model.agent_frames);
+    println!(
+        "loader benchmark: {}x{} frames, {} ({} s to open), batch {} ({} frames), augmentation {}, {} threads",
+        data.height,
+        data.width,
+        if data.frames_in_memory() { "held decoded" } else { "JPEG decoded on use" },
+        format_args!("{open_seconds:.1}"),
+        a.batch,
+        frames,
+        if augment.is_some() { "on" } else { "off" },
+        rate.threads
+    );
+    let per_batch = |s: f64| s / rate.batches as f64;
+    println!(
+        "  build {:.4} s/batch = {:.1} samples/s; copy to {:?} {:.4} s/batch; built and copied {:.1} samples/s",
+        per_batch(rate.build_seconds),
+        rate.samples_per_second(),
+        device,
+        per_batch(rate.copy_seconds),
+        rate.delivered_per_second()
+    );
+    Ok(())
 }
 
 /// Model, frame size and batch of a benchmark configuration.
@@ -140,7 +181,10 @@ fn bench_train(
         "training benchmark `{}`: {}x{} frames, batch {} ({} frames per step), backbone width {}, device {:?}, {:?}",
         c.name, c.image.height, c.image.width, c.batch, frames, c.model.backbone_width, device, precision
     );
-    println!("  {:<18} {:>12} {:>10} {:>9} {:>12}", "architecture", "parameters", "s/step", "steps/s", "peak memory");
+    println!(
+        "  {:<18} {:>12} {:>10} {:>9} {:>10} {:>12}",
+        "architecture", "parameters", "s/step", "steps/s", "samples/s", "peak memory"
+    );
     let weights = LossWeights::default();
     for name in architectures {
         let model = ModelConfig { architecture: Architecture::named(name), ..c.model.clone() };
@@ -165,7 +209,7 @@ fn bench_train(
             (Device::Cpu, Some(kb)) => format!("<= {:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
             _ => "see nvidia-smi".to_string(),
         };
-        println!("  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {memory:>12}", 1.0 / s);
+        println!("  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {:>10.1} {memory:>12}", 1.0 / s, c.batch as f64 / s);
     }
 
     let trunk_vs = nn::VarStore::new(device);

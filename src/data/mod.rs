@@ -4,4 +4,5 @@ pub mod collect;
 pub mod loader;
 pub mod manifest;
 pub mod pairs;
+pub mod throughput;
 pub mod trajectory;

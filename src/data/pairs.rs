@@ -147,6 +147,17 @@ impl PairDataset {
         })
     }
 
+    /// Whether every frame was decoded when opening (else each use decodes its JPEG).
+    pub fn frames_in_memory(&self) -> bool {
+        self.decoded.is_some()
+    }
+
+    /// Drops the frames decoded when opening, so that each use decodes its JPEG: what a dataset larger than the
+    /// decode-ahead budget does (for measuring that path on a small collection).
+    pub fn decode_on_use(&mut self) {
+        self.decoded = None;
+    }
+
     /// RGB frame `t` of trajectory `k` of the demonstrator (`robot` 0) or agent (1) collection.
     fn rgb(&self, robot: usize, k: usize, t: usize) -> Result<std::borrow::Cow<'_, [u8]>> {
         Ok(match &self.decoded {

@@ -1,0 +1,70 @@
+//! How fast the training data path builds batches (sampling, JPEG decoding where frames are not held decoded,
+//! augmentation, normalisation) and copies them to the training device: the supply to set beside a training
+//! step's demand, batch size x steps per second.
+use super::augment::Augmentation;
+use super::loader::build_batch;
+use super::pairs::{PairDataset, Split};
+use crate::model::config::ModelConfig;
+use anyhow::{Result, bail};
+use std::time::Instant;
+use tch::Device;
+
+/// Measured batch building and copying.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoaderRate {
+    pub batch_size: usize,
+    /// Batches timed (after one untimed warm-up batch).
+    pub batches: usize,
+    /// Threads that built each batch's samples.
+    pub threads: usize,
+    /// Seconds spent building the timed batches on the host.
+    pub build_seconds: f64,
+    /// Seconds spent copying them to the device.
+    pub copy_seconds: f64,
+}
+
+impl LoaderRate {
+    /// Samples built per second.
+    pub fn samples_per_second(&self) -> f64 {
+        (self.batch_size * self.batches) as f64 / self.build_seconds
+    }
+
+    /// Samples built and copied to the device per second, one after the other on the calling thread.
+    pub fn delivered_per_second(&self) -> f64 {
+        (self.batch_size * self.batches) as f64 / (self.build_seconds + self.copy_seconds)
+    }
+}
+
+/// Builds `batches` training batches of `batch_size` from `data` on a pool of `threads` threads (augmented with
+/// `augment`, if given) and copies each to `device`, timing the two apart.
+pub fn measure(
+    data: &PairDataset,
+    model: &ModelConfig,
+    batch_size: usize,
+    batches: usize,
+    threads: usize,
+    augment: Option<&Augmentation>,
+    device: Device,
+) -> Result<LoaderRate> {
+    if batch_size == 0 || batches == 0 || threads == 0 {
+        bail!("the loader benchmark needs a batch size, a number of batches and a number of threads of at least 1");
+    }
+    data.check_fits(model)?;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let (mut build_seconds, mut copy_seconds) = (0.0, 0.0);
+    for step in 0..=batches as u64 {
+        let start = Instant::now();
+        let batch = pool.install(|| build_batch(data, Split::Train, model, batch_size, 0, step, augment))?;
+        let built = Instant::now();
+        let on_device = batch.to_device(model, data.height, data.width, device);
+        if let Device::Cuda(i) = device {
+            tch::Cuda::synchronize(i as i64);
+        }
+        drop(on_device);
+        if step > 0 {
+            build_seconds += (built - start).as_secs_f64();
+            copy_seconds += built.elapsed().as_secs_f64();
+        }
+    }
+    Ok(LoaderRate { batch_size, batches, threads, build_seconds, copy_seconds })
+}
