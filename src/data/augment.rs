@@ -81,12 +81,24 @@ impl AugmentDraw {
     pub fn apply(&self, rgb: &[u8], height: usize, width: usize, out: &mut [f32]) {
         let plane = height * width;
         let [top, left, ch, cw] = self.crop;
-        let (sy, sx) = (ch / height as f32, cw / width as f32);
-        for r in 0..height {
-            for c in 0..width {
-                let src_r = top + (r as f32 - self.shift[0] + 0.5) * sy - 0.5;
-                let src_c = left + (c as f32 - self.shift[1] + 0.5) * sx - 0.5;
-                let mut px = bilinear(rgb, height, width, src_r, src_c);
+        // The resampling is separable: each output row reads two source rows, each output column two source columns.
+        let rows = taps(height, top, ch / height as f32, self.shift[0]);
+        let columns = taps(width, left, cw / width as f32, self.shift[1]);
+        for (r, row) in rows.iter().enumerate() {
+            for (c, column) in columns.iter().enumerate() {
+                let mut px = [0.0f32; 3];
+                for (&sr, &wr) in row.index.iter().zip(&row.weight) {
+                    for (&sc, &wc) in column.index.iter().zip(&column.weight) {
+                        let weight = wr * wc;
+                        if weight != 0.0 {
+                            let i = (sr * width + sc) * 3;
+                            for k in 0..3 {
+                                px[k] += weight * f32::from(rgb[i + k]);
+                            }
+                        }
+                    }
+                }
+                px = px.map(|v| v / 255.0);
                 if let Some(delta) = self.hsv {
                     px = jitter_hsv(px, delta);
                 }
@@ -96,6 +108,35 @@ impl AugmentDraw {
             }
         }
     }
+}
+
+/// The two source pixels an output pixel reads along one axis, and their bilinear weights (zero for a pixel
+/// outside the frame, which reads as black).
+struct Taps {
+    index: [usize; 2],
+    weight: [f32; 2],
+}
+
+/// Taps of each of the `len` output positions of an axis whose source window starts at `offset`, is stretched by
+/// `scale` source pixels per output pixel, and is shifted by `shift` output pixels.
+fn taps(len: usize, offset: f32, scale: f32, shift: f32) -> Vec<Taps> {
+    (0..len)
+        .map(|i| {
+            let source = offset + (i as f32 - shift + 0.5) * scale - 0.5;
+            let first = source.floor();
+            let fraction = source - first;
+            let mut t = Taps { index: [0, 0], weight: [0.0, 0.0] };
+            for (k, (at, weight)) in
+                [(first as i64, 1.0 - fraction), (first as i64 + 1, fraction)].into_iter().enumerate()
+            {
+                if at >= 0 && (at as usize) < len {
+                    t.index[k] = at as usize;
+                    t.weight[k] = weight;
+                }
+            }
+            t
+        })
+        .collect()
 }
 
 /// RGB in [0, 1] shifted in HSV by (hue degrees, saturation, value) and back, clipped to [0, 1].
@@ -127,26 +168,6 @@ fn jitter_hsv([r, g, b]: [f32; 3], [dh, ds, dv]: [f32; 3]) -> [f32; 3] {
     [r1 + m, g1 + m, b1 + m].map(|u| u.clamp(0.0, 1.0))
 }
 
-/// RGB in [0, 1] at a fractional position; black outside the frame.
-fn bilinear(rgb: &[u8], height: usize, width: usize, r: f32, c: f32) -> [f32; 3] {
-    let (r0, c0) = (r.floor(), c.floor());
-    let (fr, fc) = (r - r0, c - c0);
-    let mut acc = [0.0f32; 3];
-    for (dr, wr) in [(0, 1.0 - fr), (1, fr)] {
-        for (dc, wc) in [(0, 1.0 - fc), (1, fc)] {
-            let (rr, cc) = (r0 as i64 + dr, c0 as i64 + dc);
-            if rr < 0 || cc < 0 || rr >= height as i64 || cc >= width as i64 {
-                continue;
-            }
-            let i = (rr as usize * width + cc as usize) * 3;
-            for k in 0..3 {
-                acc[k] += wr * wc * f32::from(rgb[i + k]) / 255.0;
-            }
-        }
-    }
-    acc
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -166,6 +187,25 @@ mod tests {
             for k in 0..3 {
                 let expected = (f32::from(px[k]) / 255.0 - MEAN[k]) / STD[k];
                 assert!((out[k * h * w + i] - expected).abs() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn a_whole_pixel_shift_moves_the_picture_and_fills_the_border_black() {
+        let (h, w) = (6, 8);
+        let rgb = gradient(h, w);
+        let shift = AugmentDraw { crop: [0.0, 0.0, h as f32, w as f32], shift: [1.0, 2.0], hsv: None };
+        let (mut moved, mut id) = (vec![0.0; 3 * h * w], vec![0.0; 3 * h * w]);
+        shift.apply(&rgb, h, w, &mut moved);
+        AugmentDraw::identity(h, w).apply(&rgb, h, w, &mut id);
+        for k in 0..3 {
+            for r in 0..h {
+                for c in 0..w {
+                    let got = moved[k * h * w + r * w + c];
+                    let want = if r >= 1 && c >= 2 { id[k * h * w + (r - 1) * w + c - 2] } else { -MEAN[k] / STD[k] };
+                    assert!((got - want).abs() < 1e-5, "channel {k} row {r} column {c}: {got} vs {want}");
+                }
             }
         }
     }
