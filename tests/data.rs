@@ -151,7 +151,7 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
 fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_same_batches() {
     use oneshot_lab::data::augment::Augmentation;
     use oneshot_lab::data::loader::build_batch;
-    use oneshot_lab::data::pairs::{PairDataset, Split};
+    use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
     use oneshot_lab::data::throughput::measure;
     use oneshot_lab::model::config::ModelConfig;
     let dir = scratch("loader");
@@ -163,9 +163,24 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
     on_use.decode_on_use();
     assert!(held.frames_in_memory() && !on_use.frames_in_memory());
     let (model, aug) = (ModelConfig::default(), Augmentation::default());
-    let a = build_batch(&held, Split::Train, &model, 4, 7, 3, Some(&aug)).unwrap();
-    let b = build_batch(&on_use, Split::Train, &model, 4, 7, 3, Some(&aug)).unwrap();
+    let a = build_batch(&held, Split::Train, &model, 4, 7, 3, Windows::Training, Some(&aug)).unwrap();
+    let b = build_batch(&on_use, Split::Train, &model, 4, 7, 3, Windows::Training, Some(&aug)).unwrap();
     assert_eq!((a.context, a.agent, a.actions), (b.context, b.agent, b.actions));
+
+    // Windows from the start (the probe's approach windows) begin with a trajectory's first action.
+    let agents = dir.join("panda");
+    let firsts: Vec<Vec<f32>> = Manifest::load(&agents)
+        .unwrap()
+        .trajectories
+        .iter()
+        .map(|e| Trajectory::load(&agents.join(&e.file)).unwrap())
+        .map(|t| oneshot_lab::sim::action::Action(t.actions[0].map(f64::from)).normalized().to_vec())
+        .collect();
+    let start = build_batch(&held, Split::Train, &model, 4, 7, 3, Windows::FromStart, None).unwrap();
+    let per_sample = start.actions.len() / 4;
+    for s in start.actions.chunks(per_sample) {
+        assert!(firsts.iter().any(|f| f[..] == s[..8]), "a window from the start begins with a first action");
+    }
 
     for threads in [1, 2] {
         let rate = measure(&on_use, &model, 4, 3, threads, Some(&aug), tch::Device::Cpu).unwrap();

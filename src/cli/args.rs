@@ -294,6 +294,9 @@ pub struct ProbeArgs {
     /// Probe training windows instead of validation ones.
     #[arg(long)]
     pub train_split: bool,
+    /// Probe windows at the start of each trajectory (the approach to the object) instead of training's draws.
+    #[arg(long)]
+    pub from_start: bool,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     #[arg(long, default_value = "auto")]

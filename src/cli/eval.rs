@@ -2,7 +2,7 @@
 use super::args::{EvalArgs, ProbeArgs, parse_named};
 use super::default_workers;
 use anyhow::{Result, bail};
-use oneshot_lab::data::pairs::{PairDataset, Split};
+use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
 use oneshot_lab::device::parse_device;
 use oneshot_lab::eval::layouts::{Layouts, training_seeds};
 use oneshot_lab::eval::probe::{open_loop, print_probe};
@@ -56,6 +56,7 @@ pub fn probe(a: ProbeArgs) -> Result<()> {
     let trained = load_trained(&a.policy, a.checkpoint, parse_device(&a.device)?)?;
     let data = PairDataset::open(&a.demos, &a.agents, trained.summary.train.val_fraction, None)?;
     let split = if a.train_split { Split::Train } else { Split::Val };
-    print_probe(&open_loop(&trained, &data, split, a.windows, 16, a.seed)?);
+    let placement = if a.from_start { Windows::FromStart } else { Windows::Training };
+    print_probe(&open_loop(&trained, &data, split, placement, a.windows, 16, a.seed)?);
     Ok(())
 }

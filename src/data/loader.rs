@@ -1,7 +1,7 @@
 //! Batches for training, built ahead of the training step: samples are decoded and augmented in parallel (rayon)
 //! on a producer thread that keeps a bounded queue of ready batches.
 use super::augment::Augmentation;
-use super::pairs::{PairDataset, Sample, Split};
+use super::pairs::{PairDataset, Sample, Split, Windows};
 use crate::model::config::ModelConfig;
 use crate::seeds::derive_seed;
 use anyhow::Result;
@@ -69,7 +69,9 @@ impl Batch {
     }
 }
 
-/// Builds batch `step` of `split` deterministically from `seed` (each sample has its own derived generator).
+/// Builds batch `step` of `split` deterministically from `seed` (each sample has its own derived generator), its
+/// windows placed as `windows` says.
+#[allow(clippy::too_many_arguments)]
 pub fn build_batch(
     data: &PairDataset,
     split: Split,
@@ -77,6 +79,7 @@ pub fn build_batch(
     batch_size: usize,
     seed: u64,
     step: u64,
+    windows: Windows,
     augment: Option<&Augmentation>,
 ) -> Result<Batch> {
     let domain = match split {
@@ -87,7 +90,7 @@ pub fn build_batch(
         .into_par_iter()
         .map(|i| {
             let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(domain, &[seed, step, i as u64]));
-            data.sample(&mut rng, split, model, augment)
+            data.sample(&mut rng, split, model, windows, augment)
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(Batch::from_samples(samples))
@@ -134,6 +137,7 @@ impl Prefetcher {
                     spec.batch_size,
                     spec.seed,
                     step,
+                    Windows::Training,
                     spec.augment.as_ref(),
                 );
                 if sender.send(batch).is_err() {
@@ -156,6 +160,7 @@ impl Prefetcher {
                     spec.batch_size,
                     spec.seed,
                     *next - 1,
+                    Windows::Training,
                     spec.augment.as_ref(),
                 )
             }

@@ -195,13 +195,14 @@ impl PairDataset {
         Ok(())
     }
 
-    /// Draws one sample of `split`: a uniformly random agent trajectory and demonstrator video of its task.
-    /// Draws one sample of `split`, augmented within `augment` if given.
+    /// Draws one sample of `split`: a uniformly random agent trajectory and demonstrator video of its task, its
+    /// agent window placed as `windows` says, augmented within `augment` if given.
     pub fn sample<R: Rng>(
         &self,
         rng: &mut R,
         split: Split,
         model: &ModelConfig,
+        windows: Windows,
         augment: Option<&Augmentation>,
     ) -> Result<Sample> {
         let s = split as usize;
@@ -243,7 +244,10 @@ impl PairDataset {
             demo_draw.apply(&self.rgb(0, demo_k, t)?, h, w, &mut context[k * frame_len..(k + 1) * frame_len]);
         }
 
-        let start = window_start(rng, agent.len(), model.agent_frames);
+        let start = match windows {
+            Windows::Training => window_start(rng, agent.len(), model.agent_frames),
+            Windows::FromStart => 0,
+        };
         let mut frames = vec![0.0f32; model.agent_frames * frame_len];
         for k in 0..model.agent_frames {
             draw(rng).apply(&self.rgb(1, agent_k, start + k)?, h, w, &mut frames[k * frame_len..(k + 1) * frame_len]);
@@ -255,6 +259,15 @@ impl PairDataset {
         let point = [2.0 * col / w as f32 - 1.0, 2.0 * row / h as f32 - 1.0];
         Ok(Sample { task, context, agent: frames, actions, point, poses: agent.grasp_and_drop() })
     }
+}
+
+/// Where a sample's agent window lies in its trajectory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Windows {
+    /// As training draws it: anywhere, forced to the start or the end with probability 0.4 (the authors').
+    Training,
+    /// At the trajectory's start: the approach to the object, where the action depends most on where it lies.
+    FromStart,
 }
 
 /// One training sample in planar, normalised form.

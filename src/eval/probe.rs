@@ -1,7 +1,7 @@
 //! The open-loop probe: a trained policy's actions on held-out expert windows against the expert's, per action
 //! dimension. It separates "the network predicts the wrong action" from "the closed loop goes wrong".
 use crate::data::loader::build_batch;
-use crate::data::pairs::{PairDataset, Split};
+use crate::data::pairs::{PairDataset, Split, Windows};
 use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
 use crate::sim::action::{ACTION_DIM, ACTION_RANGES};
 use crate::train::TrainedPolicy;
@@ -18,7 +18,7 @@ pub struct ProbeReport {
     pub mode: [f64; ACTION_DIM],
     /// One sample of the mixture against the expert's action.
     pub sample: [f64; ACTION_DIM],
-    /// The probed actions' own mean against each action: what ignoring the input scores.
+    /// The probed actions' own mean at each window position against each action: what ignoring the frames scores.
     pub mean_baseline: [f64; ACTION_DIM],
 }
 
@@ -27,11 +27,13 @@ fn mae(pred: &Tensor, target: &Tensor) -> [f64; ACTION_DIM] {
     std::array::from_fn(|d| e.double_value(&[d as i64]))
 }
 
-/// Probes `windows` windows of `split` (no augmentation; batches of `batch`), deterministically from `seed`.
+/// Probes `windows` windows of `split` placed as `placement` says (no augmentation; batches of `batch`),
+/// deterministically from `seed`.
 pub fn open_loop(
     policy: &TrainedPolicy,
     data: &PairDataset,
     split: Split,
+    placement: Windows,
     windows: usize,
     batch: usize,
     seed: u64,
@@ -49,7 +51,12 @@ pub fn open_loop(
             break;
         }
         let n = batch.min(windows - done);
-        let b = build_batch(data, split, model, n, seed, k, None)?.to_device(model, data.height, data.width, device);
+        let b = build_batch(data, split, model, n, seed, k, placement, None)?.to_device(
+            model,
+            data.height,
+            data.width,
+            device,
+        );
         let steps = b.actions.size()[1];
         let out = tch::no_grad(|| policy.policy.forward_t(&b.context, &b.agent, false));
         let trained = MixtureParams {
@@ -63,14 +70,13 @@ pub fn open_loop(
         done += n;
     }
     let (pred, sample, target) = (Tensor::cat(&preds, 0), Tensor::cat(&samples, 0), Tensor::cat(&targets, 0));
-    let flat = target.view([-1, ACTION_DIM as i64]);
-    let mean = flat.mean_dim([0i64].as_slice(), true, Kind::Float);
+    let mean = target.mean_dim([0i64].as_slice(), true, Kind::Float);
     Ok(ProbeReport {
         windows: done,
-        actions: flat.size()[0] as usize,
+        actions: target.view([-1, ACTION_DIM as i64]).size()[0] as usize,
         mode: mae(&pred, &target),
         sample: mae(&sample, &target),
-        mean_baseline: mae(&mean.expand_as(&flat), &flat),
+        mean_baseline: mae(&mean.expand_as(&target), &target),
     })
 }
 
@@ -78,17 +84,21 @@ pub fn open_loop(
 pub fn print_probe(r: &ProbeReport) {
     const NAMES: [&str; ACTION_DIM] = ["x", "y", "z", "angle/pi", "axis x", "axis y", "axis z", "gripper"];
     println!("open-loop probe: {} windows, {} actions; mean absolute error (normalised units)", r.windows, r.actions);
-    println!("{:<9} {:>9} {:>9} {:>11} {:>14}", "dimension", "mode", "sample", "mean-only", "mode (absolute)");
+    println!(
+        "{:<9} {:>9} {:>9} {:>11} {:>16} {:>21}",
+        "dimension", "mode", "sample", "mean-only", "mode (absolute)", "mean-only (absolute)"
+    );
     for d in 0..ACTION_DIM {
         let half_range = (ACTION_RANGES[d][1] - ACTION_RANGES[d][0]) / 2.0;
         let unit = if d < 3 { " m" } else { "" };
         println!(
-            "{:<9} {:>9.3} {:>9.3} {:>11.3} {:>12.4}{unit}",
+            "{:<9} {:>9.3} {:>9.3} {:>11.3} {:>14.4}{unit} {:>19.4}{unit}",
             NAMES[d],
             r.mode[d],
             r.sample[d],
             r.mean_baseline[d],
-            r.mode[d] * half_range
+            r.mode[d] * half_range,
+            r.mean_baseline[d] * half_range
         );
     }
 }

@@ -7,7 +7,7 @@ pub mod config;
 pub mod curve;
 
 use crate::data::loader::{Batch, DeviceBatch, PrefetchSpec, Prefetcher, build_batch};
-use crate::data::pairs::{PairDataset, Split};
+use crate::data::pairs::{PairDataset, Split, Windows};
 use crate::model::config::ModelConfig;
 use crate::model::policy::{Losses, Policy};
 use crate::seeds::derive_seed;
@@ -165,7 +165,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let (h, w) = (data.height, data.width);
     let val: Vec<DeviceBatch> = (0..config.val_batches)
         .map(|k| {
-            build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, None)
+            build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, Windows::Training, None)
                 .map(|b| b.to_device(model, h, w, device))
         })
         .collect::<Result<_>>()?;
