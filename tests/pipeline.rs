@@ -305,6 +305,7 @@ fn malformed_experiment_files_name_file_line_and_key() {
             "[collect]\ntasks = [0, 1, 2]\n[grid]\nsizes = [32]\n",
             &["bad.toml", "grid.sizes", "32", "collect.tasks"][..],
         ),
+        ("[collect]\ntasks = [3, 5, 3]\n", &["bad.toml", "collect.tasks", "task 3 twice"][..]),
         ("[grid]\nvariants = [\"full\", \"nope\"]\n", &["bad.toml", "nope"][..]),
         ("[variants.x]\ntrain.lr = -1.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "variant `x`", "train.lr"][..]),
         ("[variants.x]\ntrain.los.inverse = 0.0\n[grid]\nvariants = [\"x\"]\n", &["bad.toml", "line 2", "los"][..]),

@@ -51,8 +51,11 @@ impl CollectSettings {
         if self.tasks.is_empty() {
             bail!("collect.tasks is empty");
         }
-        for &t in &self.tasks {
+        for (i, &t) in self.tasks.iter().enumerate() {
             Task::from_id(t).with_context(|| format!("collect.tasks contains {t}"))?;
+            if self.tasks[..i].contains(&t) {
+                bail!("collect.tasks lists task {t} twice");
+            }
         }
         if self.max_actions == 0 || self.max_attempts == 0 {
             bail!("collect.max_actions and collect.max_attempts must be at least 1");
