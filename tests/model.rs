@@ -90,6 +90,44 @@ fn a_tiny_model_overfits_one_batch() {
 }
 
 #[test]
+fn the_optional_pose_head_is_causal_and_fits_its_targets() {
+    let _rng = seeded(2);
+    let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
+    assert!(policy.forward_t(&images(1, 4), &images(1, 2), false).poses.is_none());
+    assert!(vs.variables().keys().all(|name| !name.contains("pose_head")));
+
+    let (vs, policy) = build_policy(&ModelConfig { pose_head: true, ..tiny() }, Device::Cpu).unwrap();
+    let (context, agent) = (images(2, 4), images(2, 7));
+    let changed = agent.copy();
+    let _ = changed.narrow(1, 4, 1).fill_(3.0);
+    let a = policy.forward_t(&context, &agent, false).poses.unwrap();
+    let b = policy.forward_t(&context, &changed, false).poses.unwrap();
+    assert_eq!(a.size(), [2, 7, 6]);
+    assert!((a.narrow(1, 0, 4) - b.narrow(1, 0, 4)).abs().max().double_value(&[]) < 1e-5);
+
+    let batch = DeviceBatch {
+        context,
+        agent,
+        actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
+    };
+    let mut opt = Adam::new(&vs, 1e-2);
+    let first = policy.losses(&batch, true).pose.double_value(&[]);
+    for _ in 0..100 {
+        opt.backward_step(&policy.losses(&batch, true).pose);
+    }
+    let last = policy.losses(&batch, true).pose.double_value(&[]);
+    assert!(last < 0.1 * first, "pose loss {first} -> {last}");
+
+    for name in ["contextual_lstm", "daml"] {
+        let model = ModelConfig { architecture: Architecture::named(name), pose_head: true, ..tiny() };
+        let err = model.validate().unwrap_err().to_string();
+        assert!(err.contains("model.pose_head") && err.contains(name), "{err}");
+    }
+}
+
+#[test]
 fn a_checkpoint_round_trips_exactly_and_refuses_another_architecture() {
     let dir = scratch("ckpt");
     let path = dir.join("a.safetensors");

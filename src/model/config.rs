@@ -81,6 +81,12 @@ pub struct ModelConfig {
     pub context_frames: usize,
     /// Agent frames in a training window (actions = frames - 1).
     pub agent_frames: usize,
+    /// An extra head on the architectures with the paper's heads: the grasp and drop positions (the targets of
+    /// DAML's auxiliary head) regressed from [task, frame] at every agent frame, trained with weight
+    /// `train.loss.pose`. It makes each frame's embedding locate the demonstrated object. A departure: the
+    /// authors' transformer has no such head (false).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub pose_head: bool,
 }
 
 impl Default for ModelConfig {
@@ -106,6 +112,7 @@ impl Default for ModelConfig {
             context: ContextMode::Spread,
             context_frames: 4,
             agent_frames: 7,
+            pose_head: false,
         }
     }
 }
@@ -161,6 +168,13 @@ impl ModelConfig {
         }
         if self.context != ContextMode::FirstLast && self.context_frames < 2 {
             bail!("model.context_frames = {} must be at least 2", self.context_frames);
+        }
+        let registration = self.architecture.registration().expect("checked above");
+        if self.pose_head && !registration.optional_pose_head {
+            bail!(
+                "model.pose_head = true needs an architecture that ends in the paper's heads, not {:?}",
+                self.architecture.0
+            );
         }
         if self.agent_frames < 2 {
             bail!("model.agent_frames = {} must be at least 2 (one action)", self.agent_frames);

@@ -96,17 +96,26 @@ pub struct PolicyHeads {
     inverse: nn::Linear,
     action_head: MixtureHead,
     point_head: PointHead,
+    /// `model.pose_head`: [task, frame] -> hidden -> grasp and drop positions.
+    pose_head: Option<(nn::Linear, nn::Linear)>,
 }
 
 impl PolicyHeads {
     /// Heads over `latent`-wide embeddings, under `vs` (parameters `policy`, `inverse`, `action_head`,
-    /// `point_head`).
+    /// `point_head`, and `pose_head` when the model has one).
     pub fn new(vs: &nn::Path, latent: i64, config: &ModelConfig) -> PolicyHeads {
         PolicyHeads {
             policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
             inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
             action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
             point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
+            pose_head: config.pose_head.then(|| {
+                let p = vs / "pose_head";
+                (
+                    nn::linear(&p / "hidden", 2 * latent, config.point_hidden, Default::default()),
+                    nn::linear(&p / "out", config.point_hidden, 6, Default::default()),
+                )
+            }),
         }
     }
 
@@ -114,12 +123,14 @@ impl PolicyHeads {
     pub fn forward(&self, task: &Tensor, frames: &Tensor) -> PolicyOutput {
         let (b, ta) = (frames.size()[0], frames.size()[1]);
         let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
-        let hidden = self.policy.forward(&Tensor::cat(&[&task_per_frame, frames], -1)).relu();
+        let joint = Tensor::cat(&[&task_per_frame, frames], -1);
+        let hidden = self.policy.forward(&joint).relu();
         let pairs = Tensor::cat(&[frames.narrow(1, 0, ta - 1), frames.narrow(1, 1, ta - 1)], -1);
         PolicyOutput {
             actions: self.action_head.forward(&hidden),
             inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
             point: Some(self.point_head.forward(task)),
+            poses: self.pose_head.as_ref().map(|(h, o)| o.forward(&h.forward(&joint).relu())),
         }
     }
 }

@@ -16,6 +16,8 @@ pub struct PolicyOutput {
     pub inverse: Option<MixtureParams>,
     /// End-effector pixel at the end of the window (architectures without the head: none).
     pub point: Option<PointPrediction>,
+    /// Grasp and drop positions `[B, Ta, 6]` (metres) at every agent frame (`model.pose_head`; otherwise none).
+    pub poses: Option<Tensor>,
 }
 
 /// The training losses of one batch; a loss whose head the architecture lacks is zero.
@@ -26,8 +28,8 @@ pub struct Losses {
     pub inverse: Tensor,
     /// NLL of the end-effector pixel at the end of the window.
     pub point: Tensor,
-    /// Squared error of the predicted grasp and drop positions (architectures with a pose head; added unweighted,
-    /// as the authors' DAML training does).
+    /// Squared error (metres) of the predicted grasp and drop positions (architectures with a pose head, and
+    /// `model.pose_head`), weighted by `train.loss.pose`.
     pub pose: Tensor,
 }
 
@@ -65,7 +67,10 @@ pub fn head_losses(out: &PolicyOutput, batch: &DeviceBatch, spec: MixtureSpec) -
         bc: mixture_nll(&acted, &batch.actions, spec),
         inverse: out.inverse.as_ref().map_or_else(zero, |p| mixture_nll(p, &batch.actions, spec)),
         point: out.point.as_ref().map_or_else(zero, |p| point_nll(p, &batch.points)),
-        pose: zero(),
+        pose: out.poses.as_ref().map_or_else(zero, |p| {
+            let target = batch.poses.unsqueeze(1).expand_as(p);
+            p.to_kind(Kind::Float).mse_loss(&target, tch::Reduction::Mean)
+        }),
     }
 }
 

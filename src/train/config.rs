@@ -13,18 +13,26 @@ pub struct LossWeights {
     pub bc: f64,
     pub inverse: f64,
     pub point: f64,
+    /// Grasp-and-drop position regression (metres squared): DAML's auxiliary loss, which the authors add
+    /// unweighted (1), and `model.pose_head`'s.
+    #[serde(skip_serializing_if = "is_one")]
+    pub pose: f64,
+}
+
+fn is_one(w: &f64) -> bool {
+    *w == 1.0
 }
 
 impl LossWeights {
     /// The weighted sum of `losses` that is optimised.
     pub fn total(&self, losses: &Losses) -> Tensor {
-        &losses.bc * self.bc + &losses.inverse * self.inverse + &losses.point * self.point + &losses.pose
+        &losses.bc * self.bc + &losses.inverse * self.inverse + &losses.point * self.point + &losses.pose * self.pose
     }
 }
 
 impl Default for LossWeights {
     fn default() -> Self {
-        LossWeights { bc: 1.0, inverse: 1.0, point: 0.1 }
+        LossWeights { bc: 1.0, inverse: 1.0, point: 0.1, pose: 1.0 }
     }
 }
 
@@ -153,12 +161,12 @@ impl TrainConfig {
             bail!("train.val_fraction = {} out of range (0, 1)", self.val_fraction);
         }
         let w = &self.loss;
-        for (key, v) in [("bc", w.bc), ("inverse", w.inverse), ("point", w.point)] {
+        for (key, v) in [("bc", w.bc), ("inverse", w.inverse), ("point", w.point), ("pose", w.pose)] {
             if !(v >= 0.0 && v.is_finite()) {
                 bail!("train.loss.{key} = {v} must be a non-negative number");
             }
         }
-        if w.bc + w.inverse + w.point == 0.0 {
+        if w.bc + w.inverse + w.point + w.pose == 0.0 {
             bail!("train.loss: every loss weight is 0");
         }
         self.augmentation.validate()?;

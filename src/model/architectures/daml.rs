@@ -20,6 +20,7 @@ pub const DAML: Registration = Registration {
     description: "the DAML baseline: MAML with a learned inner loss over the demonstration, and a grasp/drop head",
     auxiliary_heads: false,
     pose_head: true,
+    optional_pose_head: false,
     // Its inner gradient step carries bf16 rounding into the adapted weights: the outer gradient turns away from
     // fp32's (tests/precision.rs measured a cosine of 0.4).
     bf16: false,
@@ -213,7 +214,7 @@ fn bias(b: &Option<Tensor>) -> Tensor {
 
 impl PolicyNet for Daml {
     fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
-        PolicyOutput { actions: self.batch_outputs(context, agent, train).0, inverse: None, point: None }
+        PolicyOutput { actions: self.batch_outputs(context, agent, train).0, inverse: None, point: None, poses: None }
     }
 
     fn set_channels_last(&mut self, on: bool) {

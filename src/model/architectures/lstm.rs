@@ -18,6 +18,7 @@ pub const CONTEXTUAL_LSTM: Registration = Registration {
     description: "the Contextual-LSTM baseline: encoder and decoder LSTMs over frame embeddings",
     auxiliary_heads: true,
     pose_head: false,
+    optional_pose_head: false,
     bf16: true,
     build: |vs, config| Box::new(ContextualLstm::new(vs, config)),
 };
@@ -89,6 +90,7 @@ impl PolicyNet for ContextualLstm {
             actions: self.action_head.forward(&hidden),
             inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
             point: Some(self.point_head.forward(&context_summary)),
+            poses: None,
         }
     }
 }

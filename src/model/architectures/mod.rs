@@ -19,6 +19,8 @@ pub struct Registration {
     pub auxiliary_heads: bool,
     /// Whether it predicts the grasp and drop positions (what `eval.control = "scripted_poses"` executes).
     pub pose_head: bool,
+    /// Whether `model.pose_head` can add a grasp-and-drop head (the architectures ending in the paper's heads).
+    pub optional_pose_head: bool,
     /// Whether it trains faithfully under bf16 autocast (`train.precision = "bf16"`).
     pub bf16: bool,
     pub build: fn(&nn::Path, &ModelConfig) -> Box<dyn PolicyNet>,

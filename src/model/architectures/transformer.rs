@@ -17,6 +17,7 @@ pub const TRANSFORMER: Registration = Registration {
     description: "non-local attention over all tokens of all frames (the paper's model)",
     auxiliary_heads: true,
     pose_head: false,
+    optional_pose_head: true,
     bf16: true,
     build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::Attention)),
 };
@@ -27,6 +28,7 @@ pub const TEMPORAL_CONV: Registration = Registration {
     description: "the no-attention ablation: causal bottleneck blocks around a 5x5x5 spatio-temporal convolution",
     auxiliary_heads: true,
     pose_head: false,
+    optional_pose_head: true,
     bf16: true,
     build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::TemporalConv)),
 };
