@@ -1,13 +1,15 @@
 //! Training on a small real collection: validation loss falls for every architecture; the model's sizes are
 //! checked against the data.
 use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
+use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
+use oneshot_lab::eval::probe::{PositionErrors, open_loop};
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::train::config::{LossWeights, TrainConfig};
-use oneshot_lab::train::{TrainRun, curve, train};
+use oneshot_lab::train::{TrainRun, curve, load_trained, train};
 
 fn tasks(ids: &[usize]) -> CollectSettings {
     CollectSettings { tasks: ids.to_vec(), ..CollectSettings::default() }
@@ -51,6 +53,18 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     let points = curve::read(&out.join("curve.jsonl"), u64::MAX).unwrap();
     assert_eq!(points.iter().filter(|p| p.split == "val").count(), 4, "steps 0, 40, 80, 120");
     assert!(out.join("checkpoints/step_00000060.safetensors").exists() && out.join("model.safetensors").exists());
+
+    // The open-loop probe of the trained model: its errors per window position average to the overall ones.
+    let trained = load_trained(&out, None, tch::Device::Cpu).unwrap();
+    let data = PairDataset::open(&dir.join("sawyer"), &dir.join("panda"), config.val_fraction, None).unwrap();
+    let report = open_loop(&trained, &data, Split::Train, Windows::FromStart, 5, 2, 0).unwrap();
+    assert_eq!((report.windows, report.actions, report.by_position.len()), (5, 30, 6));
+    for d in 0..8 {
+        let mean_of =
+            |f: fn(&PositionErrors) -> [f64; 8]| report.by_position.iter().map(|p| f(p)[d]).sum::<f64>() / 6.0;
+        assert!((mean_of(|p| p.mode) - report.mode[d]).abs() < 1e-6, "dimension {d}");
+        assert!((mean_of(|p| p.mean_baseline) - report.mean_baseline[d]).abs() < 1e-6, "dimension {d}");
+    }
 
     // Interrupted after 60 steps and resumed: the same weights as the uninterrupted run, bit for bit.
     let split = dir.join("split");

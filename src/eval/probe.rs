@@ -20,6 +20,18 @@ pub struct ProbeReport {
     pub sample: [f64; ACTION_DIM],
     /// The probed actions' own mean at each window position against each action: what ignoring the frames scores.
     pub mean_baseline: [f64; ACTION_DIM],
+    /// The mode's and the mean-only errors at each window position (0: the window's first agent frame alone).
+    pub by_position: Vec<PositionErrors>,
+    /// For a model with `model.pose_head`: the grasp and drop positions' mean absolute errors (metres, x y z
+    /// of each) predicted from each window's first agent frame, and what predicting their means scores.
+    pub poses_from_first_frame: Option<([f64; 6], [f64; 6])>,
+}
+
+/// Errors at one window position, in normalised units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PositionErrors {
+    pub mode: [f64; ACTION_DIM],
+    pub mean_baseline: [f64; ACTION_DIM],
 }
 
 fn mae(pred: &Tensor, target: &Tensor) -> [f64; ACTION_DIM] {
@@ -45,6 +57,7 @@ pub fn open_loop(
     data.check_fits(model)?;
     let device = policy.vars.device();
     let (mut preds, mut samples, mut targets) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut poses, mut true_poses) = (Vec::new(), Vec::new());
     let mut done = 0;
     for k in 0.. {
         if done >= windows {
@@ -67,17 +80,39 @@ pub fn open_loop(
         preds.push(mixture_mode(&trained).to_device(Device::Cpu));
         samples.push(mixture_sample(&trained).to_device(Device::Cpu));
         targets.push(b.actions.to_device(Device::Cpu));
+        if let Some(p) = &out.poses {
+            poses.push(p.select(1, 0).to_device(Device::Cpu));
+            true_poses.push(b.poses.to_device(Device::Cpu));
+        }
         done += n;
     }
     let (pred, sample, target) = (Tensor::cat(&preds, 0), Tensor::cat(&samples, 0), Tensor::cat(&targets, 0));
-    let mean = target.mean_dim([0i64].as_slice(), true, Kind::Float);
+    let mean = target.mean_dim([0i64].as_slice(), true, Kind::Float).expand_as(&target);
+    let by_position = (0..target.size()[1])
+        .map(|i| PositionErrors {
+            mode: mae(&pred.select(1, i), &target.select(1, i)),
+            mean_baseline: mae(&mean.select(1, i), &target.select(1, i)),
+        })
+        .collect();
+    let poses_from_first_frame = (!poses.is_empty()).then(|| {
+        let (pred, truth) = (Tensor::cat(&poses, 0), Tensor::cat(&true_poses, 0));
+        let mean = truth.mean_dim([0i64].as_slice(), true, Kind::Float).expand_as(&truth);
+        (pose_mae(&pred, &truth), pose_mae(&mean, &truth))
+    });
     Ok(ProbeReport {
         windows: done,
         actions: target.view([-1, ACTION_DIM as i64]).size()[0] as usize,
         mode: mae(&pred, &target),
         sample: mae(&sample, &target),
-        mean_baseline: mae(&mean.expand_as(&target), &target),
+        mean_baseline: mae(&mean, &target),
+        by_position,
+        poses_from_first_frame,
     })
+}
+
+fn pose_mae(pred: &Tensor, target: &Tensor) -> [f64; 6] {
+    let e = (pred - target).abs().mean_dim([0i64].as_slice(), false, Kind::Double);
+    std::array::from_fn(|d| e.double_value(&[d as i64]))
 }
 
 /// Prints the report with absolute units beside the normalised ones.
@@ -100,5 +135,29 @@ pub fn print_probe(r: &ProbeReport) {
             r.mode[d] * half_range,
             r.mean_baseline[d] * half_range
         );
+    }
+    println!("by window position, mode / mean-only (absolute, m): position 0 sees one agent frame, so only there");
+    println!("must the object be found in the picture rather than in the arm's motion");
+    println!("{:<9} {:>17} {:>17} {:>17}", "position", "x", "y", "z");
+    for (i, p) in r.by_position.iter().enumerate() {
+        let cell = |d: usize| {
+            let half_range = (ACTION_RANGES[d][1] - ACTION_RANGES[d][0]) / 2.0;
+            format!("{:.4} / {:.4}", p.mode[d] * half_range, p.mean_baseline[d] * half_range)
+        };
+        println!("{:<9} {:>17} {:>17} {:>17}", i, cell(0), cell(1), cell(2));
+    }
+    if let Some((head, mean)) = r.poses_from_first_frame {
+        for (name, at) in [("grasp", 0), ("drop", 3)] {
+            println!(
+                "pose head, {name} position from the first agent frame, mean absolute error x / y / z (m): \
+                 {:.4} / {:.4} / {:.4} (mean {name} position: {:.4} / {:.4} / {:.4})",
+                head[at],
+                head[at + 1],
+                head[at + 2],
+                mean[at],
+                mean[at + 1],
+                mean[at + 2]
+            );
+        }
     }
 }
