@@ -111,7 +111,11 @@ fn caught_up(store: &Path) -> (String, i64, i64) {
     (stdout(&status), count("done"), count("failed"))
 }
 
-/// Calls `status` until `done` stages are done (at most five minutes).
+/// How long a wait may last before the test calls the run hung: a guard, not a speed requirement (on 2 cores
+/// shared with other work, or with a hypervisor taking most of them, stages take many times their usual time).
+const HANG_GUARD: Duration = Duration::from_secs(1800);
+
+/// Calls `status` until `done` stages are done.
 fn wait_until_done(store: &Path, done: i64) -> String {
     let start = Instant::now();
     loop {
@@ -119,7 +123,7 @@ fn wait_until_done(store: &Path, done: i64) -> String {
         if n == done {
             return text;
         }
-        assert!(start.elapsed() < Duration::from_secs(300), "{n} of {done} stages done after 5 minutes: {text}");
+        assert!(start.elapsed() < HANG_GUARD, "{n} of {done} stages done after {HANG_GUARD:?}: {text}");
         std::thread::sleep(Duration::from_secs(2));
     }
 }
@@ -137,7 +141,7 @@ fn job_of(store: &Path, kind: &str) -> String {
     .to_string()
 }
 
-/// Waits (at most four minutes) until a training job has written a checkpoint into its staging folder.
+/// Waits until a training job has written a checkpoint into its staging folder.
 fn wait_for_checkpoint(store: &Path) {
     let start = Instant::now();
     let written = || {
@@ -147,7 +151,7 @@ fn wait_for_checkpoint(store: &Path) {
         })
     };
     while !written() {
-        assert!(start.elapsed() < Duration::from_secs(240), "the training job never checkpointed");
+        assert!(start.elapsed() < HANG_GUARD, "the training job never checkpointed");
         std::thread::sleep(Duration::from_millis(100));
     }
 }
@@ -196,7 +200,7 @@ fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_ru
         if failed == 2 {
             break text;
         }
-        assert!(start.elapsed() < Duration::from_secs(120), "{failed} stages failed: {text}");
+        assert!(start.elapsed() < HANG_GUARD, "{failed} stages failed after {HANG_GUARD:?}: {text}");
         std::thread::sleep(Duration::from_secs(2));
     };
     assert!(text.contains("ended CANCELLED without results"), "{text}");
