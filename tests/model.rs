@@ -6,7 +6,7 @@ use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::policy::Policy;
 use oneshot_lab::model::resnet::ResNet18;
 use oneshot_lab::train::adam::Adam;
-use oneshot_lab::train::config::LossWeights;
+use oneshot_lab::train::config::{LossWeights, TrainConfig, check_heads};
 use oneshot_lab::train::{build_policy, checkpoint};
 use tch::{Device, Kind, Tensor, nn};
 
@@ -119,6 +119,11 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
     }
     let last = policy.losses(&batch, true).pose.double_value(&[]);
     assert!(last < 0.1 * first, "pose loss {first} -> {last}");
+
+    let weighted = TrainConfig { loss: LossWeights { pose: 300.0, ..LossWeights::default() }, ..Default::default() };
+    let err = check_heads(&tiny(), &weighted).unwrap_err().to_string();
+    assert!(err.contains("train.loss.pose = 300"), "{err}");
+    check_heads(&ModelConfig { pose_head: true, ..tiny() }, &weighted).unwrap();
 
     for name in ["contextual_lstm", "daml"] {
         let model = ModelConfig { architecture: Architecture::named(name), pose_head: true, ..tiny() };

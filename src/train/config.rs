@@ -216,5 +216,13 @@ pub fn check_heads(model: &ModelConfig, train: &TrainConfig) -> Result<()> {
             model.architecture.0
         );
     }
+    let has_pose = model.architecture.registration().is_some_and(|r| r.pose_head) || model.pose_head;
+    if !has_pose && train.loss.pose != 1.0 {
+        bail!(
+            "train.loss.pose = {} weights a head model.architecture = {:?} lacks: set model.pose_head = true",
+            train.loss.pose,
+            model.architecture.0
+        );
+    }
     Ok(())
 }
