@@ -150,10 +150,11 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
 #[test]
 fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_same_batches() {
     use oneshot_lab::data::augment::Augmentation;
-    use oneshot_lab::data::loader::build_batch;
+    use oneshot_lab::data::loader::{AugmentAt, build_batch};
     use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
     use oneshot_lab::data::throughput::measure;
     use oneshot_lab::model::config::ModelConfig;
+    use tch::Device;
     let dir = scratch("loader");
     for robot in [Robot::Sawyer, Robot::Panda] {
         collect(&tiny(robot, vec![0, 6], 2), &dir.join(robot.to_string()), 2, false).unwrap();
@@ -163,9 +164,21 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
     on_use.decode_on_use();
     assert!(held.frames_in_memory() && !on_use.frames_in_memory());
     let (model, aug) = (ModelConfig::default(), Augmentation::default());
-    let a = build_batch(&held, Split::Train, &model, 4, 7, 3, Windows::Training, Some(&aug)).unwrap();
-    let b = build_batch(&on_use, Split::Train, &model, 4, 7, 3, Windows::Training, Some(&aug)).unwrap();
-    assert_eq!((a.context, a.agent, a.actions), (b.context, b.agent, b.actions));
+    let batch = |data: &PairDataset, at: AugmentAt| {
+        let b = build_batch(data, Split::Train, &model, 4, 7, 3, Windows::Training, Some(&aug), at).unwrap();
+        b.to_device(&model, data.height, data.width, Device::Cpu)
+    };
+    let (a, b) = (batch(&held, AugmentAt::Host), batch(&on_use, AugmentAt::Host));
+    assert!(a.context.equal(&b.context) && a.agent.equal(&b.agent) && a.actions.equal(&b.actions));
+
+    // Augmenting on the training device (here the CPU's tensor kernels) makes the same batch.
+    let d = batch(&held, AugmentAt::Device(Device::Cpu));
+    for (host, device) in [(&a.context, &d.context), (&a.agent, &d.agent)] {
+        assert_eq!(host.size(), device.size());
+        let worst = (host - device).abs().max().double_value(&[]);
+        assert!(worst < 1e-3, "host and device augmentation differ by {worst}");
+    }
+    assert!(a.actions.equal(&d.actions) && a.points.equal(&d.points));
 
     // Windows from the start (the probe's approach windows) begin with a trajectory's first action.
     let agents = dir.join("panda");
@@ -176,19 +189,19 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
         .map(|e| Trajectory::load(&agents.join(&e.file)).unwrap())
         .map(|t| oneshot_lab::sim::action::Action(t.actions[0].map(f64::from)).normalized().to_vec())
         .collect();
-    let start = build_batch(&held, Split::Train, &model, 4, 7, 3, Windows::FromStart, None).unwrap();
+    let start = build_batch(&held, Split::Train, &model, 4, 7, 3, Windows::FromStart, None, AugmentAt::Host).unwrap();
     let per_sample = start.actions.len() / 4;
     for s in start.actions.chunks(per_sample) {
         assert!(firsts.iter().any(|f| f[..] == s[..8]), "a window from the start begins with a first action");
     }
 
-    for threads in [1, 2] {
-        let rate = measure(&on_use, &model, 4, 3, threads, Some(&aug), tch::Device::Cpu).unwrap();
+    for (threads, at) in [(1, AugmentAt::Host), (2, AugmentAt::Host), (2, AugmentAt::Device(Device::Cpu))] {
+        let rate = measure(&on_use, &model, 4, 3, threads, (Some(&aug), at), Device::Cpu).unwrap();
         assert_eq!((rate.batch_size, rate.batches, rate.threads), (4, 3, threads));
         assert!(rate.build_seconds > 0.0 && rate.copy_seconds > 0.0, "{rate:?}");
         assert!(rate.samples_per_second() > rate.delivered_per_second(), "{rate:?}");
     }
-    let err = measure(&held, &model, 4, 0, 1, None, tch::Device::Cpu).unwrap_err();
+    let err = measure(&held, &model, 4, 0, 1, (None, AugmentAt::Host), Device::Cpu).unwrap_err();
     assert!(err.to_string().contains("number of batches"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

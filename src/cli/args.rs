@@ -438,6 +438,9 @@ pub struct BenchTrainArgs {
     /// Number type of the forward pass: `fp32` or `bf16` (autocast), as `train.precision`.
     #[arg(long, default_value = "fp32")]
     pub precision: String,
+    /// Layout of the trunk's images: `contiguous` or `channels_last`, as `train.memory_format`.
+    #[arg(long, default_value = "contiguous")]
+    pub memory_format: String,
 }
 
 /// Arguments of the `bench-eval` command.
@@ -477,6 +480,10 @@ pub struct BenchLoaderArgs {
     /// Where batches are copied: `auto`, `cpu`, `cuda` or `cuda:N`.
     #[arg(long, default_value = "auto")]
     pub device: String,
+    /// Where frames are augmented: `host` (by the threads building the batch) or `device` (after the copy),
+    /// as `train.augment_on`.
+    #[arg(long, default_value = "host")]
+    pub augment_on: String,
 }
 
 /// Arguments of the `bench-plan` command.

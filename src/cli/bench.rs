@@ -4,10 +4,10 @@ use super::args::{BenchEvalArgs, BenchLoaderArgs, BenchPlanArgs, BenchTrainArgs}
 use super::default_workers;
 use anyhow::{Context, Result, bail};
 use oneshot_lab::data::augment::Augmentation;
-use oneshot_lab::data::loader::DeviceBatch;
+use oneshot_lab::data::loader::{AugmentAt, DeviceBatch};
 use oneshot_lab::data::pairs::PairDataset;
 use oneshot_lab::data::throughput;
-use oneshot_lab::device::parse_device;
+use oneshot_lab::device::{autotune_convolutions, parse_device};
 use oneshot_lab::eval::rollout::rollouts;
 use oneshot_lab::eval::{EvalConfig, EvalOutput, Policy};
 use oneshot_lab::model::architectures::ARCHITECTURES;
@@ -18,7 +18,7 @@ use oneshot_lab::pipeline::stages::StageOutputs;
 use oneshot_lab::pipeline::store::{Claim, Store};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
-use oneshot_lab::train::config::{LossWeights, Precision, TrainConfig, check_precision};
+use oneshot_lab::train::config::{LossWeights, MemoryFormat, Precision, TrainConfig, check_precision};
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained};
 use std::collections::HashSet;
 use std::time::Instant;
@@ -43,7 +43,12 @@ pub fn train(a: BenchTrainArgs) -> Result<()> {
         "bf16" => Precision::Bf16,
         other => bail!("--precision {other}: expected fp32 or bf16"),
     };
-    bench_train(&c, a.steps.max(1), &a.device, &architectures, precision)
+    let memory_format = match a.memory_format.as_str() {
+        "contiguous" => MemoryFormat::Contiguous,
+        "channels_last" => MemoryFormat::ChannelsLast,
+        other => bail!("--memory-format {other}: expected contiguous or channels_last"),
+    };
+    bench_train(&c, a.steps.max(1), &a.device, &architectures, (precision, memory_format))
 }
 
 /// `bench-eval`: rollouts per second of a small network and of the random policy.
@@ -69,10 +74,16 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
     let model = ModelConfig::default();
     let augmentation = Augmentation::default();
     let augment = (!a.no_augment).then_some(&augmentation);
-    let rate = throughput::measure(&data, &model, a.batch, a.batches, threads, augment, device)?;
+    let at = match a.augment_on.as_str() {
+        "host" => AugmentAt::Host,
+        "device" => AugmentAt::Device(device),
+        other => bail!("--augment-on {other}: expected host or device"),
+    };
+    let rate = throughput::measure(&data, &model, a.batch, a.batches, threads, (augment, at), device)?;
     let frames = a.batch * (model.context_len() + model.agent_frames);
     println!(
-        "loader benchmark: {}x{} frames, {} ({} s to open), batch {} ({} frames), augmentation {}, {} threads",
+        "loader benchmark: {}x{} frames, {} ({} s to open), batch {} ({} frames), augmentation {} on the {}, {} \
+         threads",
         data.height,
         data.width,
         if data.frames_in_memory() { "held decoded" } else { "JPEG decoded on use" },
@@ -80,14 +91,16 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
         a.batch,
         frames,
         if augment.is_some() { "on" } else { "off" },
+        a.augment_on,
         rate.threads
     );
     let per_batch = |s: f64| s / rate.batches as f64;
     println!(
-        "  build {:.4} s/batch = {:.1} samples/s; copy to {:?} {:.4} s/batch; built and copied {:.1} samples/s",
+        "  build {:.4} s/batch = {:.1} samples/s; copy to {:?}{} {:.4} s/batch; built and copied {:.1} samples/s",
         per_batch(rate.build_seconds),
         rate.samples_per_second(),
         device,
+        if at == AugmentAt::Host { "" } else { " and augment there" },
         per_batch(rate.copy_seconds),
         rate.delivered_per_second()
     );
@@ -171,19 +184,29 @@ fn bench_train(
     steps: usize,
     device: &str,
     architectures: &[String],
-    precision: Precision,
+    (precision, memory_format): (Precision, MemoryFormat),
 ) -> Result<()> {
     let device = parse_device(device)?;
+    autotune_convolutions(device);
     tch::manual_seed(0);
     let batch = synthetic_batch(c, device);
     let frames = c.batch * (c.model.context_len() + c.model.agent_frames);
     println!(
-        "training benchmark `{}`: {}x{} frames, batch {} ({} frames per step), backbone width {}, device {:?}, {:?}",
-        c.name, c.image.height, c.image.width, c.batch, frames, c.model.backbone_width, device, precision
+        "training benchmark `{}`: {}x{} frames, batch {} ({} frames per step), backbone width {}, device {:?}, {:?}, \
+         {:?}",
+        c.name,
+        c.image.height,
+        c.image.width,
+        c.batch,
+        frames,
+        c.model.backbone_width,
+        device,
+        precision,
+        memory_format
     );
     println!(
-        "  {:<18} {:>12} {:>10} {:>9} {:>10} {:>12}",
-        "architecture", "parameters", "s/step", "steps/s", "samples/s", "peak memory"
+        "  {:<18} {:>12} {:>10} {:>9} {:>10} {:>12} {:>10}",
+        "architecture", "parameters", "s/step", "steps/s", "samples/s", "peak memory", "60k steps"
     );
     let weights = LossWeights::default();
     for name in architectures {
@@ -193,7 +216,8 @@ fn bench_train(
             println!("  {name:<18} skipped: {e}");
             continue;
         }
-        let (vs, policy) = build_policy(&model, device)?;
+        let (vs, mut policy) = build_policy(&model, device)?;
+        policy.set_channels_last(memory_format == MemoryFormat::ChannelsLast);
         let parameters: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
         let mut opt = nn::Adam::default().build(&vs, 5e-4)?;
         let fresh_peak = reset_peak_rss();
@@ -207,13 +231,24 @@ fn bench_train(
         let memory = match (device, peak_rss_kb()) {
             (Device::Cpu, Some(kb)) if fresh_peak => format!("{:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
             (Device::Cpu, Some(kb)) => format!("<= {:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
-            _ => "see nvidia-smi".to_string(),
+            // libtorch's caching allocator keeps what it took, so what the process holds is its peak so far.
+            (Device::Cuda(_), _) => match gpu_memory_held_mib() {
+                Some(mib) => format!("<= {:.2} GiB", mib as f64 / 1024.0),
+                None => "n/a".to_string(),
+            },
+            _ => "n/a".to_string(),
         };
-        println!("  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {:>10.1} {memory:>12}", 1.0 / s, c.batch as f64 / s);
+        println!(
+            "  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {:>10.1} {memory:>12} {:>10.2}",
+            1.0 / s,
+            c.batch as f64 / s,
+            PAPER_STEPS as f64 * s / 3600.0
+        );
     }
 
     let trunk_vs = nn::VarStore::new(device);
-    let trunk = ResNet18::new(&trunk_vs.root(), c.model.backbone_width, c.model.backbone_stages);
+    let mut trunk = ResNet18::new(&trunk_vs.root(), c.model.backbone_width, c.model.backbone_stages);
+    trunk.set_channels_last(memory_format == MemoryFormat::ChannelsLast);
     let images = Tensor::cat(&[&batch.context, &batch.agent], 1).flatten(0, 1);
     let trunk_step = || {
         let loss = trunk.forward_t(&images, true).mean(Kind::Float);
@@ -227,7 +262,27 @@ fn bench_train(
     };
     let trunk_s = seconds_per_step(steps, device, trunk_step);
     println!("  {:<18} {:>12} {trunk_s:>10.3} {:>9.2}", "ResNet-18 trunk", "", 1.0 / trunk_s);
+    if device.is_cuda() {
+        println!("  peak memory: GPU memory this process holds (nvidia-smi), the most any step so far needed");
+    }
+    println!("  60k steps: hours for the paper's {PAPER_STEPS} training steps at this rate");
     Ok(())
+}
+
+/// Training steps of the paper's runs (the authors' `experiments/base.yaml`).
+const PAPER_STEPS: usize = 60_000;
+
+/// GPU memory (MiB) this process holds, as `nvidia-smi` reports it; none without nvidia-smi.
+fn gpu_memory_held_mib() -> Option<u64> {
+    let out = std::process::Command::new("nvidia-smi")
+        .args(["--query-compute-apps=pid,used_memory", "--format=csv,noheader,nounits"])
+        .output()
+        .ok()?;
+    let me = std::process::id().to_string();
+    String::from_utf8_lossy(&out.stdout).lines().find_map(|l| {
+        let (pid, mib) = l.split_once(',')?;
+        (pid.trim() == me).then(|| mib.trim().parse().ok()).flatten()
+    })
 }
 
 /// Times evaluation of the `small` network (fresh weights: its speed does not depend on them), and of the random

@@ -5,8 +5,10 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 /// ImageNet channel means and standard deviations.
-const MEAN: [f32; 3] = [0.485, 0.456, 0.406];
-const STD: [f32; 3] = [0.229, 0.224, 0.225];
+pub const MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+pub const STD: [f32; 3] = [0.229, 0.224, 0.225];
+/// Numbers in a draw's [`AugmentDraw::row`].
+pub const DRAW_LEN: usize = 9;
 /// The frame size the authors' pixel ranges refer to.
 const AUTHORS_FRAME: [f64; 2] = [240.0, 320.0];
 
@@ -75,6 +77,20 @@ impl AugmentDraw {
             shift: [dy as f32, dx as f32],
             hsv: Some([(hue * 180.0) as f32, sat as f32, (val / 255.0) as f32]),
         }
+    }
+
+    /// The draw as numbers, for [`super::device_augment::augment_frames`]: crop (top, left, height, width), shift
+    /// (rows, columns), HSV change (zero where the draw has none).
+    pub fn row(&self) -> [f32; DRAW_LEN] {
+        let [top, left, height, width] = self.crop;
+        let [rows, columns] = self.shift;
+        let [hue, sat, val] = self.hsv.unwrap_or([0.0; 3]);
+        [top, left, height, width, rows, columns, hue, sat, val]
+    }
+
+    /// Whether the draw changes colours (the host path jitters only then).
+    pub fn jitters(&self) -> bool {
+        self.hsv.is_some()
     }
 
     /// Applies the draw to interleaved RGB bytes, writing normalised planar `[3, H, W]` values into `out`.

@@ -1,7 +1,8 @@
 //! Batches for training, built ahead of the training step: samples are decoded and augmented in parallel (rayon)
 //! on a producer thread that keeps a bounded queue of ready batches.
-use super::augment::Augmentation;
-use super::pairs::{PairDataset, Sample, Split, Windows};
+use super::augment::{AugmentDraw, Augmentation, DRAW_LEN};
+use super::device_augment::{augment_frames, bytes_to_device};
+use super::pairs::{FrameData, FrameForm, PairDataset, Sample, Split, Windows};
 use crate::model::config::ModelConfig;
 use crate::seeds::derive_seed;
 use anyhow::Result;
@@ -13,14 +14,22 @@ use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 use tch::{Device, Tensor};
 
-/// A batch of samples as flat host arrays.
+/// A batch of samples on the host.
 pub struct Batch {
     pub size: usize,
-    pub context: Vec<f32>,
-    pub agent: Vec<f32>,
+    pub frames: BatchFrames,
     pub actions: Vec<f32>,
     pub points: Vec<f32>,
     pub poses: Vec<f32>,
+}
+
+/// A batch's frames, in the form its samples were drawn in.
+pub enum BatchFrames {
+    /// Augmented and normalised planar frames `[B, T, 3, H, W]`, flattened.
+    Normalised { context: Vec<f32>, agent: Vec<f32> },
+    /// RGB bytes `[B, T, H, W, 3]` (pinned when bound for a GPU) and each frame's draw `[B * (Tc + Ta),
+    /// DRAW_LEN]`, context frames of a sample first, for the device to augment.
+    Raw { context: Tensor, agent: Tensor, draws: Tensor, jitter: bool },
 }
 
 /// A batch on a device: `context` `[B, Tc, 3, H, W]`, `agent` `[B, Ta, 3, H, W]`, `actions` `[B, Ta - 1, 8]`,
@@ -33,35 +42,85 @@ pub struct DeviceBatch {
     pub poses: Tensor,
 }
 
+/// Where a batch's frames are augmented and normalised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AugmentAt {
+    /// On the host, by the threads that build the batch.
+    Host,
+    /// On the training device; raw frames bound for `Device` are pinned when it is a GPU.
+    Device(Device),
+}
+
 impl Batch {
-    /// Stacks samples.
-    pub fn from_samples(samples: Vec<Sample>) -> Batch {
-        let mut b = Batch {
-            size: samples.len(),
-            context: vec![],
-            agent: vec![],
-            actions: vec![],
-            points: vec![],
-            poses: vec![],
-        };
+    /// Stacks samples (all drawn in one [`FrameForm`]); raw frames become host tensors, pinned for `pin_for` when
+    /// it is a GPU.
+    pub fn from_samples(
+        samples: Vec<Sample>,
+        model: &ModelConfig,
+        height: usize,
+        width: usize,
+        pin_for: Device,
+    ) -> Batch {
+        let size = samples.len();
+        let (mut actions, mut points, mut poses) = (vec![], vec![], vec![]);
+        let (mut context, mut agent, mut bytes, mut agent_bytes, mut draws) = (vec![], vec![], vec![], vec![], vec![]);
+        let mut jitter = false;
         for s in samples {
-            b.context.extend(s.context);
-            b.agent.extend(s.agent);
-            b.actions.extend(s.actions);
-            b.points.extend(s.point);
-            b.poses.extend(s.poses);
+            actions.extend(s.actions);
+            points.extend(s.point);
+            poses.extend(s.poses);
+            for (frames, floats, raw) in
+                [(s.context, &mut context, &mut bytes), (s.agent, &mut agent, &mut agent_bytes)]
+            {
+                match frames {
+                    FrameData::Normalised(v) => floats.extend(v),
+                    FrameData::Raw { bytes, draws: d } => {
+                        raw.extend(bytes);
+                        jitter |= d.iter().any(AugmentDraw::jitters);
+                        draws.extend(d.iter().flat_map(AugmentDraw::row));
+                    }
+                }
+            }
         }
-        b
+        let frames = if draws.is_empty() {
+            BatchFrames::Normalised { context, agent }
+        } else {
+            let (b, h, w) = (size as i64, height as i64, width as i64);
+            let (tc, ta) = (model.context_len() as i64, model.agent_frames as i64);
+            let host = |v: &[u8], t: i64| {
+                let x = Tensor::from_slice(v).view([b, t, h, w, 3]);
+                if pin_for.is_cuda() { x.pin_memory(pin_for) } else { x }
+            };
+            // Per sample, context draws then agent draws: reorder into all context frames, then all agent frames.
+            let rows = Tensor::from_slice(&draws).view([b, tc + ta, DRAW_LEN as i64]);
+            let draws = Tensor::cat(
+                &[rows.narrow(1, 0, tc).reshape([b * tc, -1]), rows.narrow(1, tc, ta).reshape([b * ta, -1])],
+                0,
+            );
+            BatchFrames::Raw { context: host(&bytes, tc), agent: host(&agent_bytes, ta), draws, jitter }
+        };
+        Batch { size, frames, actions, points, poses }
     }
 
-    /// Copies the batch to `device` with the shapes `model` and frames of `height x width` imply.
+    /// Copies the batch to `device` (augmenting raw frames there) with the shapes `model` and frames of
+    /// `height x width` imply.
     pub fn to_device(&self, model: &ModelConfig, height: usize, width: usize, device: Device) -> DeviceBatch {
         let (b, h, w) = (self.size as i64, height as i64, width as i64);
         let (tc, ta) = (model.context_len() as i64, model.agent_frames as i64);
         let t = |v: &[f32], shape: &[i64]| Tensor::from_slice(v).view(shape).to_device(device);
+        let (context, agent) = match &self.frames {
+            BatchFrames::Normalised { context, agent } => (t(context, &[b, tc, 3, h, w]), t(agent, &[b, ta, 3, h, w])),
+            BatchFrames::Raw { context, agent, draws, jitter } => {
+                let augment = |frames: &Tensor, draws: Tensor, len: i64| {
+                    let on_device = bytes_to_device(frames, device).view([b * len, h, w, 3]);
+                    augment_frames(&on_device, &draws, *jitter).view([b, len, 3, h, w])
+                };
+                (augment(context, draws.narrow(0, 0, b * tc), tc), augment(agent, draws.narrow(0, b * tc, b * ta), ta))
+            }
+        };
         DeviceBatch {
-            context: t(&self.context, &[b, tc, 3, h, w]),
-            agent: t(&self.agent, &[b, ta, 3, h, w]),
+            context,
+            agent,
             actions: t(&self.actions, &[b, ta - 1, 8]),
             points: t(&self.points, &[b, 2]),
             poses: t(&self.poses, &[b, 6]),
@@ -81,19 +140,24 @@ pub fn build_batch(
     step: u64,
     windows: Windows,
     augment: Option<&Augmentation>,
+    at: AugmentAt,
 ) -> Result<Batch> {
     let domain = match split {
         Split::Train => "train-batch",
         Split::Val => "val-batch",
     };
+    let (form, pin_for) = match at {
+        AugmentAt::Host => (FrameForm::Normalised, Device::Cpu),
+        AugmentAt::Device(d) => (FrameForm::Raw, d),
+    };
     let samples = (0..batch_size)
         .into_par_iter()
         .map(|i| {
             let mut rng = ChaCha8Rng::seed_from_u64(derive_seed(domain, &[seed, step, i as u64]));
-            data.sample(&mut rng, split, model, windows, augment)
+            data.sample(&mut rng, split, model, windows, augment, form)
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok(Batch::from_samples(samples))
+    Ok(Batch::from_samples(samples, model, data.height, data.width, pin_for))
 }
 
 /// Training batches for steps `start..`: produced ahead on a background thread (`depth` > 0), or built when asked
@@ -118,6 +182,8 @@ pub struct PrefetchSpec {
     pub augment: Option<Augmentation>,
     /// Ready batches kept queued; 0 builds each batch when it is asked for.
     pub depth: usize,
+    /// Where the frames are augmented.
+    pub augment_at: AugmentAt,
 }
 
 impl Prefetcher {
@@ -139,6 +205,7 @@ impl Prefetcher {
                     step,
                     Windows::Training,
                     spec.augment.as_ref(),
+                    spec.augment_at,
                 );
                 if sender.send(batch).is_err() {
                     return;
@@ -162,6 +229,7 @@ impl Prefetcher {
                     *next - 1,
                     Windows::Training,
                     spec.augment.as_ref(),
+                    spec.augment_at,
                 )
             }
             Source::Thread { receiver, .. } => {

@@ -1,6 +1,7 @@
 //! Datasets: the trajectory file format, collection, and (for training) pair sampling and augmentation.
 pub mod augment;
 pub mod collect;
+pub mod device_augment;
 pub mod loader;
 pub mod manifest;
 pub mod pairs;

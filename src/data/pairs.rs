@@ -204,6 +204,7 @@ impl PairDataset {
         model: &ModelConfig,
         windows: Windows,
         augment: Option<&Augmentation>,
+        form: FrameForm,
     ) -> Result<Sample> {
         let s = split as usize;
         let tasks: Vec<usize> = (0..NUM_TASKS).filter(|&t| !self.agent_index[s][t].is_empty()).collect();
@@ -238,20 +239,36 @@ impl PairDataset {
             Some(a) => AugmentDraw::sample(rng, a, h, w),
             None => AugmentDraw::identity(h, w),
         };
+        // Context frames share one draw; each agent frame has its own (the authors').
         let demo_draw = draw(rng);
-        let mut context = vec![0.0f32; context_idx.len() * frame_len];
-        for (k, &t) in context_idx.iter().enumerate() {
-            demo_draw.apply(&self.rgb(0, demo_k, t)?, h, w, &mut context[k * frame_len..(k + 1) * frame_len]);
-        }
-
+        let context: Vec<(usize, usize, AugmentDraw)> = context_idx.iter().map(|&t| (0, t, demo_draw)).collect();
         let start = match windows {
             Windows::Training => window_start(rng, agent.len(), model.agent_frames),
             Windows::FromStart => 0,
         };
-        let mut frames = vec![0.0f32; model.agent_frames * frame_len];
-        for k in 0..model.agent_frames {
-            draw(rng).apply(&self.rgb(1, agent_k, start + k)?, h, w, &mut frames[k * frame_len..(k + 1) * frame_len]);
-        }
+        let agent_frames: Vec<(usize, usize, AugmentDraw)> =
+            (0..model.agent_frames).map(|k| (1, start + k, draw(rng))).collect();
+        let trajectory = [demo_k, agent_k];
+        let frames = |list: &[(usize, usize, AugmentDraw)]| -> Result<FrameData> {
+            Ok(match form {
+                FrameForm::Normalised => {
+                    let mut out = vec![0.0f32; list.len() * frame_len];
+                    for (k, (robot, t, d)) in list.iter().enumerate() {
+                        let rgb = self.rgb(*robot, trajectory[*robot], *t)?;
+                        d.apply(&rgb, h, w, &mut out[k * frame_len..(k + 1) * frame_len]);
+                    }
+                    FrameData::Normalised(out)
+                }
+                FrameForm::Raw => {
+                    let mut bytes = Vec::with_capacity(list.len() * frame_len);
+                    for (robot, t, _) in list {
+                        bytes.extend_from_slice(&self.rgb(*robot, trajectory[*robot], *t)?);
+                    }
+                    FrameData::Raw { bytes, draws: list.iter().map(|(_, _, d)| *d).collect() }
+                }
+            })
+        };
+        let (context, frames) = (frames(&context)?, frames(&agent_frames)?);
         let actions = (start..start + model.agent_frames - 1)
             .flat_map(|t| Action(agent.actions[t].map(f64::from)).normalized())
             .collect();
@@ -270,13 +287,31 @@ pub enum Windows {
     FromStart,
 }
 
-/// One training sample in planar, normalised form.
+/// How a sample carries its frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameForm {
+    /// Augmented and normalised on the host.
+    Normalised,
+    /// Raw bytes with each frame's augmentation draw, for the training device to apply
+    /// ([`super::device_augment`]).
+    Raw,
+}
+
+/// A sample's frames of one kind (context or agent), in the form asked for.
+pub enum FrameData {
+    /// Planar normalised `[T, 3, H, W]`, flattened.
+    Normalised(Vec<f32>),
+    /// Interleaved RGB `[T, H, W, 3]`, flattened, and each frame's draw.
+    Raw { bytes: Vec<u8>, draws: Vec<AugmentDraw> },
+}
+
+/// One training sample.
 pub struct Sample {
     pub task: usize,
-    /// `[Tc, 3, H, W]` flattened.
-    pub context: Vec<f32>,
-    /// `[Ta, 3, H, W]` flattened.
-    pub agent: Vec<f32>,
+    /// The demonstrator's `Tc` frames.
+    pub context: FrameData,
+    /// The agent's `Ta` frames.
+    pub agent: FrameData,
     /// `[Ta - 1, 8]` normalised actions, flattened.
     pub actions: Vec<f32>,
     /// End-effector pixel at the window's last frame, on the [-1, 1] grid (x = column, y = row).

@@ -2,7 +2,7 @@
 //! augmentation, normalisation) and copies them to the training device: the supply to set beside a training
 //! step's demand, batch size x steps per second.
 use super::augment::Augmentation;
-use super::loader::build_batch;
+use super::loader::{AugmentAt, build_batch};
 use super::pairs::{PairDataset, Split, Windows};
 use crate::model::config::ModelConfig;
 use anyhow::{Result, bail};
@@ -19,7 +19,7 @@ pub struct LoaderRate {
     pub threads: usize,
     /// Seconds spent building the timed batches on the host.
     pub build_seconds: f64,
-    /// Seconds spent copying them to the device.
+    /// Seconds spent copying them to the device (and augmenting them there, when that is where it happens).
     pub copy_seconds: f64,
 }
 
@@ -36,14 +36,15 @@ impl LoaderRate {
 }
 
 /// Builds `batches` training batches of `batch_size` from `data` on a pool of `threads` threads (augmented with
-/// `augment`, if given) and copies each to `device`, timing the two apart.
+/// `augment`'s ranges, if given, on the host or the device as its `AugmentAt` says) and copies each to `device`,
+/// timing the two apart.
 pub fn measure(
     data: &PairDataset,
     model: &ModelConfig,
     batch_size: usize,
     batches: usize,
     threads: usize,
-    augment: Option<&Augmentation>,
+    (augment, at): (Option<&Augmentation>, AugmentAt),
     device: Device,
 ) -> Result<LoaderRate> {
     if batch_size == 0 || batches == 0 || threads == 0 {
@@ -54,8 +55,8 @@ pub fn measure(
     let (mut build_seconds, mut copy_seconds) = (0.0, 0.0);
     for step in 0..=batches as u64 {
         let start = Instant::now();
-        let batch =
-            pool.install(|| build_batch(data, Split::Train, model, batch_size, 0, step, Windows::Training, augment))?;
+        let batch = pool
+            .install(|| build_batch(data, Split::Train, model, batch_size, 0, step, Windows::Training, augment, at))?;
         let built = Instant::now();
         let on_device = batch.to_device(model, data.height, data.width, device);
         if let Device::Cuda(i) = device {

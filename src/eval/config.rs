@@ -137,7 +137,7 @@ impl EvalConfig {
         if let Some(i) = self.videos.iter().find(|&&i| i >= self.episodes) {
             bail!("eval.videos contains episode {i}, but there are {} episodes", self.episodes);
         }
-        crate::device::parse_device(&self.device)?;
+        crate::device::check_device_name(&self.device)?;
         Ok(())
     }
 

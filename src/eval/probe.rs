@@ -1,6 +1,6 @@
 //! The open-loop probe: a trained policy's actions on held-out expert windows against the expert's, per action
 //! dimension. It separates "the network predicts the wrong action" from "the closed loop goes wrong".
-use crate::data::loader::build_batch;
+use crate::data::loader::{AugmentAt, build_batch};
 use crate::data::pairs::{PairDataset, Split, Windows};
 use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
 use crate::sim::action::{ACTION_DIM, ACTION_RANGES};
@@ -64,7 +64,7 @@ pub fn open_loop(
             break;
         }
         let n = batch.min(windows - done);
-        let b = build_batch(data, split, model, n, seed, k, placement, None)?.to_device(
+        let b = build_batch(data, split, model, n, seed, k, placement, None, AugmentAt::Host)?.to_device(
             model,
             data.height,
             data.width,

@@ -59,6 +59,25 @@ pub enum MemoryFormat {
     ChannelsLast,
 }
 
+/// Where training frames are augmented and normalised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum AugmentOn {
+    /// By the threads that build each batch, on the host.
+    #[default]
+    Host,
+    /// On the training device, as tensor operations on raw frames: the same draws and, up to float rounding,
+    /// the same frames, with a quarter of the bytes copied (what keeps a GPU fed).
+    Device,
+}
+
+impl AugmentOn {
+    /// Whether this is the default (then it is left out of serialised configurations).
+    pub fn is_host(&self) -> bool {
+        *self == AugmentOn::Host
+    }
+}
+
 /// The number type of the forward pass.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -97,6 +116,9 @@ pub struct TrainConfig {
     pub device: String,
     /// Layout of the trunk's image tensors (an execution detail like `device`: not part of a stage's key).
     pub memory_format: MemoryFormat,
+    /// Where frames are augmented (an execution detail like `device`: not part of a stage's key).
+    #[serde(skip_serializing_if = "AugmentOn::is_host")]
+    pub augment_on: AugmentOn,
     /// Number type of the forward pass (changes results slightly, so it is part of a stage's key unless fp32).
     #[serde(skip_serializing_if = "Precision::is_fp32")]
     pub precision: Precision,
@@ -129,6 +151,7 @@ impl Default for TrainConfig {
             seed: 0,
             device: "auto".into(),
             memory_format: MemoryFormat::Contiguous,
+            augment_on: AugmentOn::Host,
             precision: Precision::Fp32,
             val_interval: 1000,
             val_batches: 4,
@@ -170,7 +193,7 @@ impl TrainConfig {
             bail!("train.loss: every loss weight is 0");
         }
         self.augmentation.validate()?;
-        self.device()?;
+        crate::device::check_device_name(&self.device)?;
         Ok(())
     }
 

@@ -6,7 +6,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod curve;
 
-use crate::data::loader::{Batch, DeviceBatch, PrefetchSpec, Prefetcher, build_batch};
+use crate::data::loader::{AugmentAt, Batch, DeviceBatch, PrefetchSpec, Prefetcher, build_batch};
 use crate::data::pairs::{PairDataset, Split, Windows};
 use crate::model::config::ModelConfig;
 use crate::model::policy::{Losses, Policy};
@@ -142,6 +142,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     config::check_heads(model, config)?;
     config::check_precision(model, config)?;
     let device = config.device()?;
+    crate::device::autotune_convolutions(device);
     let data = Arc::new(PairDataset::open(run.demo_dir, run.agent_dir, config.val_fraction, run.per_task)?);
     data.check_fits(model)?;
     let ckpt_dir = run.out.join(CHECKPOINT_DIR);
@@ -163,10 +164,24 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let curve_path = run.out.join(CURVE_FILE);
     let mut curve = curve::resumed(&curve_path, start)?;
     let (h, w) = (data.height, data.width);
+    let augment_at = match config.augment_on {
+        config::AugmentOn::Host => AugmentAt::Host,
+        config::AugmentOn::Device => AugmentAt::Device(device),
+    };
     let val: Vec<DeviceBatch> = (0..config.val_batches)
         .map(|k| {
-            build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, Windows::Training, None)
-                .map(|b| b.to_device(model, h, w, device))
+            build_batch(
+                &data,
+                Split::Val,
+                model,
+                config.batch_size,
+                config.seed,
+                k,
+                Windows::Training,
+                None,
+                augment_at,
+            )
+            .map(|b| b.to_device(model, h, w, device))
         })
         .collect::<Result<_>>()?;
 
@@ -182,6 +197,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         start,
         augment: config.augment.then(|| config.augmentation.clone()),
         depth: config.prefetch,
+        augment_at,
     };
     let mut loader = Prefetcher::start(data.clone(), spec);
     let bar = crate::progress::progress_bar(config.steps, run.progress, "train");

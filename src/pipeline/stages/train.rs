@@ -23,9 +23,16 @@ pub struct TrainJob {
 }
 
 /// Training settings that do not change results (where it runs, how far ahead batches are made, the tensor
-/// layout) are left out of keys, so that moving a run to another machine reuses the cache.
+/// layout, where frames are augmented) are left out of keys, so that moving a run to another machine reuses the
+/// cache.
 fn identity(t: &TrainConfig) -> TrainConfig {
-    TrainConfig { device: "auto".into(), prefetch: 0, memory_format: Default::default(), ..t.clone() }
+    TrainConfig {
+        device: "auto".into(),
+        prefetch: 0,
+        memory_format: Default::default(),
+        augment_on: Default::default(),
+        ..t.clone()
+    }
 }
 
 /// Adds a cell's training on the collections `demos` and `agents` (their first `per_task` slots of each task, if
