@@ -5,9 +5,9 @@
 use super::augment::{MEAN, STD};
 use tch::{Device, Kind, Tensor};
 
-/// Frames `[N, H, W, 3]` (bytes, interleaved RGB) and draws `[N, DRAW_LEN]` ([`super::augment::AugmentDraw::row`]) to normalised planar frames
-/// `[N, 3, H, W]` (f32) on the frames' device; `jitter` applies the HSV change (the host path applies it whenever
-/// a draw carries one).
+/// Frames `[N, H, W, 3]` (bytes, interleaved RGB) and draws `[N, DRAW_LEN]` (rows of
+/// [`super::augment::AugmentDraw::row`]) to normalised planar frames `[N, 3, H, W]` (f32) on the frames' device;
+/// `jitter` applies the HSV change (the host path applies it whenever a draw carries one).
 pub fn augment_frames(frames: &Tensor, draws: &Tensor, jitter: bool) -> Tensor {
     let (n, h, w, _) = frames.size4().expect("frames are [N, H, W, 3]");
     let device = frames.device();
@@ -65,8 +65,7 @@ fn jitter_hsv(rgb: &Tensor, delta: &Tensor) -> Tensor {
     Tensor::stack(&[r1 + &m, g1 + &m, b1 + &m], 1).clamp(0.0, 1.0)
 }
 
-/// Copies host bytes `[..]` shaped `shape` to `device`, through pinned memory (and without blocking the host)
-/// when it is a GPU.
+/// Copies a host tensor of bytes to `device`; from pinned memory the copy does not block the host.
 pub fn bytes_to_device(host: &Tensor, device: Device) -> Tensor {
     match device {
         Device::Cpu => host.shallow_clone(),
