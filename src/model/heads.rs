@@ -3,6 +3,7 @@
 use super::config::ModelConfig;
 use super::mixture::{MixtureHead, MixtureSpec};
 use super::policy::PolicyOutput;
+use crate::sim::action::ACTION_RANGES;
 use tch::nn::{self, Module, ModuleT};
 use tch::{Kind, Tensor};
 
@@ -130,9 +131,25 @@ impl PolicyHeads {
             actions: self.action_head.forward(&hidden),
             inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
             point: Some(self.point_head.forward(task)),
-            poses: self.pose_head.as_ref().map(|(h, o)| o.forward(&h.forward(&joint).relu())),
+            poses: self.pose_head.as_ref().map(|(h, o)| workspace_positions(&o.forward(&h.forward(&joint).relu()))),
         }
     }
+}
+
+/// Grasp and drop positions in metres `[..., 6]` from outputs `[..., 6]` in the units the actions are
+/// normalised to (each coordinate's action range mapped to [-1, 1]). A head regressing metres directly starts
+/// about a metre from its targets and spends its first hundreds of Adam steps moving its bias there; in these
+/// units it starts in the workspace and one unit is a bin's width, as for the action head.
+pub fn workspace_positions(normalised: &Tensor) -> Tensor {
+    let (lo, span): (Vec<f32>, Vec<f32>) = (0..6)
+        .map(|i| {
+            let [lo, hi] = ACTION_RANGES[i % 3];
+            (lo as f32, (hi - lo) as f32)
+        })
+        .unzip();
+    let device = normalised.device();
+    let (lo, span) = (Tensor::from_slice(&lo).to_device(device), Tensor::from_slice(&span).to_device(device));
+    (normalised.to_kind(Kind::Float) + 1.0) * 0.5 * span + lo
 }
 
 /// Mean negative log-likelihood of targets `[B, 2]` under the predicted Gaussians.
@@ -157,6 +174,14 @@ mod tests {
         let _ = x.get(0).get(0).get(2).get(4).fill_(50.0);
         let s = spatial_softmax(&x);
         assert!((s.double_value(&[0, 0]) - 1.0).abs() < 1e-4 && (s.double_value(&[0, 1]) - 1.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn workspace_positions_map_the_unit_range_onto_the_action_ranges() {
+        let ends = Tensor::from_slice(&[-1.0f32, -1.0, -1.0, 1.0, 1.0, 1.0]).view([1, 6]);
+        let m: Vec<f32> = Vec::try_from(workspace_positions(&ends).view([-1])).unwrap();
+        let want = [0.44, -0.33, 0.82, 0.74, 0.5, 1.11];
+        assert!(m.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{m:?}");
     }
 
     #[test]
