@@ -24,6 +24,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Train(a) => cli::train::train(a),
         Command::Eval(a) => cli::eval::eval(a),
         Command::Probe(a) => cli::eval::probe(a),
+        Command::Localise(a) => cli::eval::localise(a),
         Command::Run(a) => cli::orchestrate::run(a),
         Command::RunStage(a) => cli::orchestrate::run_stage(a),
         Command::Plan(a) => cli::orchestrate::plan(a),

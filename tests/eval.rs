@@ -113,3 +113,35 @@ fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head()
     let err = run_eval(&transformer, Some(&world()), &scripted, &Layouts::Fresh(none), 1, None).unwrap_err();
     assert!(format!("{err:#}").contains("eval.control = \"scripted_poses\""), "{err:#}");
 }
+
+#[test]
+fn the_localisation_check_fits_the_grasp_positions_of_its_training_frames() {
+    use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
+    use oneshot_lab::eval::localise::{LocaliseConfig, localise};
+    use oneshot_lab::sim::robot::Robot;
+    let _guard = rng_lock();
+    let dir = scratch("localise");
+    let settings = CollectSettings { tasks: vec![1], ..CollectSettings::default() };
+    let collection = CollectConfig { per_task: 20, world: world(), settings, ..CollectConfig::paper(Robot::Panda) };
+    collect(&collection, &dir.join("panda"), 2, false).unwrap();
+    let config = LocaliseConfig {
+        backbone_width: 8,
+        backbone_stages: 2,
+        steps: 150,
+        batch: 16,
+        lr: 1e-3,
+        hold_out_every: 5,
+        report_every: 50,
+        seed: 0,
+    };
+    let r = localise(&dir.join("panda"), &config, tch::Device::Cpu).unwrap();
+    assert_eq!((r.train_frames, r.held_out_frames, r.height, r.width), (16, 4, 32, 40));
+    assert_eq!(r.curve.iter().map(|e| e.step).collect::<Vec<_>>(), [0, 50, 100, 150]);
+    let (first, last) = (r.curve[0].train, r.curve[3].train);
+    assert!(last[0] + last[1] < 0.5 * (first[0] + first[1]), "training error did not fall: {first:?} -> {last:?}");
+    assert!(r.mean_baseline.iter().all(|&e| e > 0.0 && e < 0.2), "{:?}", r.mean_baseline);
+
+    let missing = localise(&dir.join("nowhere"), &config, tch::Device::Cpu).unwrap_err();
+    assert!(format!("{missing:#}").contains("nowhere"), "{missing:#}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

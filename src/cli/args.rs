@@ -29,6 +29,10 @@ pub enum Command {
     /// Open-loop probe: a trained policy's most likely and sampled actions on held-out expert windows against the
     /// expert's, per action dimension (mean absolute error).
     Probe(ProbeArgs),
+    /// Localisation check: trains the policy's image trunk to regress the grasp position from each agent
+    /// trajectory's first frame, scored on held-out layouts against the per-task mean (can this frame size show
+    /// where the object is?).
+    Localise(LocaliseArgs),
     /// Runs an experiment file: what is not cached executes, then the report is written.
     Run(RunArgs),
     /// Runs one stage of an experiment (what a Slurm job executes); records nothing in the store.
@@ -297,6 +301,33 @@ pub struct ProbeArgs {
     /// Probe windows at the start of each trajectory (the approach to the object) instead of training's draws.
     #[arg(long)]
     pub from_start: bool,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, default_value = "auto")]
+    pub device: String,
+}
+
+/// Arguments of the `localise` command.
+#[derive(clap::Args)]
+pub struct LocaliseArgs {
+    /// Agent (Panda) collection folder.
+    #[arg(long)]
+    pub agents: PathBuf,
+    /// ResNet-18 base width (the CPU network's 16; the paper's 64).
+    #[arg(long, default_value_t = 16)]
+    pub backbone_width: i64,
+    /// Residual stages kept (the CPU network's 3; the paper's 4).
+    #[arg(long, default_value_t = 3)]
+    pub backbone_stages: usize,
+    #[arg(long, default_value_t = 1000)]
+    pub steps: u64,
+    #[arg(long, default_value_t = 32)]
+    pub batch: i64,
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f64,
+    /// Errors are printed every this many steps.
+    #[arg(long, default_value_t = 200)]
+    pub report_every: u64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     #[arg(long, default_value = "auto")]

@@ -1,10 +1,11 @@
 //! `eval` and `probe`: a policy in closed loop, and a trained one open loop on held-out expert windows.
-use super::args::{EvalArgs, ProbeArgs, parse_named};
+use super::args::{EvalArgs, LocaliseArgs, ProbeArgs, parse_named};
 use super::default_workers;
 use anyhow::{Result, bail};
 use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
 use oneshot_lab::device::parse_device;
 use oneshot_lab::eval::layouts::{Layouts, training_seeds};
+use oneshot_lab::eval::localise::LocaliseConfig;
 use oneshot_lab::eval::probe::{open_loop, print_probe};
 use oneshot_lab::eval::run::run_eval;
 use oneshot_lab::eval::summary::print_summary;
@@ -58,5 +59,31 @@ pub fn probe(a: ProbeArgs) -> Result<()> {
     let split = if a.train_split { Split::Train } else { Split::Val };
     let placement = if a.from_start { Windows::FromStart } else { Windows::Training };
     print_probe(&open_loop(&trained, &data, split, placement, a.windows, 16, a.seed)?);
+    Ok(())
+}
+
+/// `localise`: the localisation check's errors over training, in centimetres.
+pub fn localise(a: LocaliseArgs) -> Result<()> {
+    let config = LocaliseConfig {
+        backbone_width: a.backbone_width,
+        backbone_stages: a.backbone_stages,
+        steps: a.steps,
+        batch: a.batch,
+        lr: a.lr,
+        hold_out_every: 5,
+        report_every: a.report_every,
+        seed: a.seed,
+    };
+    let r = oneshot_lab::eval::localise::localise(&a.agents, &config, parse_device(&a.device)?)?;
+    let cm = |e: [f64; 2]| format!("{:5.2} / {:5.2}", 100.0 * e[0], 100.0 * e[1]);
+    println!(
+        "grasp position from the first frame ({}x{}; {} training, {} held-out layouts), mean absolute error x / y (cm)",
+        r.height, r.width, r.train_frames, r.held_out_frames
+    );
+    println!("per-task mean position, held out: {}", cm(r.mean_baseline));
+    println!("{:>6}  {:>13}  {:>13}", "step", "training", "held out");
+    for e in &r.curve {
+        println!("{:>6}  {:>13}  {:>13}", e.step, cm(e.train), cm(e.held_out));
+    }
     Ok(())
 }

@@ -8,6 +8,7 @@
 pub mod config;
 pub mod history;
 pub mod layouts;
+pub mod localise;
 pub mod policy;
 pub mod probe;
 pub mod rollout;

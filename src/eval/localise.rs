@@ -1,0 +1,148 @@
+//! The localisation check: can the policy's image trunk find the object at all at a given frame size? A ResNet-18
+//! trunk (the policy's widths), spatial softmax and a small MLP told the task are trained to regress the grasp
+//! position from each agent trajectory's first frame, where the arm is still at its start pose and only the
+//! picture says where the object lies, and scored on held-out layouts against predicting the mean. It measures the
+//! data and the trunk, not the policy: a frame size at which this fails cannot support a policy that succeeds.
+use crate::data::augment::AugmentDraw;
+use crate::data::manifest::Manifest;
+use crate::data::trajectory::Trajectory;
+use crate::model::heads::spatial_softmax;
+use crate::model::resnet::ResNet18;
+use crate::sim::task::NUM_TASKS;
+use anyhow::{Result, bail};
+use std::path::Path;
+use tch::nn::{self, Module, ModuleT, OptimizerConfig};
+use tch::{Device, Kind, Tensor};
+
+/// The trunk and its training.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LocaliseConfig {
+    pub backbone_width: i64,
+    pub backbone_stages: usize,
+    pub steps: u64,
+    pub batch: i64,
+    pub lr: f64,
+    /// Every this many trajectories, one is held out (5: a fifth).
+    pub hold_out_every: usize,
+    /// Errors are measured every this many steps.
+    pub report_every: u64,
+    pub seed: u64,
+}
+
+/// Mean absolute errors of the grasp position (x, y, in metres) at one step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocaliseErrors {
+    pub step: u64,
+    pub train: [f64; 2],
+    pub held_out: [f64; 2],
+}
+
+/// What a localisation run measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LocaliseReport {
+    pub train_frames: usize,
+    pub held_out_frames: usize,
+    pub height: usize,
+    pub width: usize,
+    /// Predicting the training frames' mean grasp position of each task, on the held-out frames.
+    pub mean_baseline: [f64; 2],
+    pub curve: Vec<LocaliseErrors>,
+}
+
+/// First frames (normalised, `[N, 3, H, W]`), task one-hots `[N, 16]` and grasp positions `[N, 2]` of a collection.
+struct FirstFrames {
+    frames: Tensor,
+    tasks: Tensor,
+    grasps: Tensor,
+}
+
+fn first_frames(dir: &Path, pick: impl Fn(usize) -> bool) -> Result<(FirstFrames, usize, usize)> {
+    let manifest = Manifest::load(dir)?;
+    let (mut frames, mut tasks, mut grasps, mut size) = (vec![], vec![], vec![], (0, 0));
+    for (_, entry) in manifest.trajectories.iter().enumerate().filter(|(i, _)| pick(*i)) {
+        let t = Trajectory::from_bytes(&entry.read_verified(dir)?)?;
+        let (h, w) = (t.meta.height, t.meta.width);
+        size = (h, w);
+        let mut out = vec![0f32; 3 * h * w];
+        AugmentDraw::identity(h, w).apply(&t.frame_rgb(0)?, h, w, &mut out);
+        frames.push(Tensor::from_slice(&out).view([3, h as i64, w as i64]));
+        let mut onehot = [0f32; NUM_TASKS];
+        onehot[t.meta.task] = 1.0;
+        tasks.push(Tensor::from_slice(&onehot));
+        let g = t.grasp_and_drop();
+        grasps.push(Tensor::from_slice(&[g[0], g[1]]));
+    }
+    if frames.is_empty() {
+        bail!("{} holds no trajectories for this split", dir.display());
+    }
+    let set = FirstFrames {
+        frames: Tensor::stack(&frames, 0),
+        tasks: Tensor::stack(&tasks, 0),
+        grasps: Tensor::stack(&grasps, 0),
+    };
+    Ok((set, size.0, size.1))
+}
+
+fn errors(pred: &Tensor, truth: &Tensor) -> [f64; 2] {
+    let e = (pred - truth).abs().mean_dim([0i64].as_slice(), false, Kind::Double);
+    [e.double_value(&[0]), e.double_value(&[1])]
+}
+
+/// Trains the check on the agent collection `dir` and reports its errors over training.
+pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<LocaliseReport> {
+    if config.hold_out_every < 2 || config.batch < 1 || config.steps == 0 || config.report_every == 0 {
+        bail!("localise: hold_out_every must be at least 2, batch, steps and report_every at least 1");
+    }
+    let every = config.hold_out_every;
+    let (train, height, width) = first_frames(dir, |i| i % every != 0)?;
+    let (held_out, _, _) = first_frames(dir, |i| i % every == 0)?;
+    // The targets are standardised by the training frames' statistics, as a regression head would want.
+    let mean = train.grasps.mean_dim([0i64].as_slice(), true, Kind::Float);
+    let scale = train.grasps.std_dim([0i64].as_slice(), false, true).clamp_min(1e-3);
+    // Per-task means: what a policy that knows the task but not the layout would predict.
+    let counts = train.tasks.sum_dim_intlist([0i64].as_slice(), false, Kind::Float).clamp_min(1.0).unsqueeze(1);
+    let task_means = train.tasks.transpose(0, 1).matmul(&train.grasps) / counts;
+    let mean_baseline = errors(&held_out.tasks.matmul(&task_means), &held_out.grasps);
+
+    tch::manual_seed(crate::seeds::derive_seed("localise", &[config.seed]) as i64);
+    let vs = nn::VarStore::new(device);
+    let root = vs.root();
+    let trunk = ResNet18::new(&(&root / "backbone"), config.backbone_width, config.backbone_stages);
+    let features = 2 * trunk.out_channels() + NUM_TASKS as i64;
+    let hidden = nn::linear(&root / "hidden", features, 64, Default::default());
+    let out = nn::linear(&root / "out", 64, 2, Default::default());
+    let forward = |frames: &Tensor, tasks: &Tensor, train: bool| {
+        let points = spatial_softmax(&trunk.forward_t(&frames.to_device(device), train));
+        let x = Tensor::cat(&[points, tasks.to_device(device)], 1);
+        out.forward(&hidden.forward(&x).relu()).to_device(Device::Cpu) * &scale + &mean
+    };
+    let score = |set: &FirstFrames| {
+        let n = set.frames.size()[0].min(256);
+        let pred = tch::no_grad(|| forward(&set.frames.narrow(0, 0, n), &set.tasks.narrow(0, 0, n), false));
+        errors(&pred, &set.grasps.narrow(0, 0, n))
+    };
+    let mut opt = nn::Adam::default().build(&vs, config.lr)?;
+    let n = train.frames.size()[0];
+    let mut curve = vec![];
+    for step in 0..=config.steps {
+        if step % config.report_every == 0 || step == config.steps {
+            curve.push(LocaliseErrors { step, train: score(&train), held_out: score(&held_out) });
+        }
+        if step == config.steps {
+            break;
+        }
+        let idx = Tensor::randint(n, [config.batch], (Kind::Int64, Device::Cpu));
+        let pred = forward(&train.frames.index_select(0, &idx), &train.tasks.index_select(0, &idx), true);
+        let target = train.grasps.index_select(0, &idx);
+        let loss = ((pred - target) / &scale).square().mean(Kind::Float);
+        opt.backward_step(&loss);
+    }
+    Ok(LocaliseReport {
+        train_frames: n as usize,
+        held_out_frames: held_out.frames.size()[0] as usize,
+        height,
+        width,
+        mean_baseline,
+        curve,
+    })
+}
