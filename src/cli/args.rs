@@ -1,6 +1,7 @@
 //! The command line's arguments. Options that have a configuration counterpart default to the configuration's
 //! default (they are `Option`s here, filled in from the configuration structs), so no default is written twice.
 use clap::{Parser, Subcommand};
+use oneshot_lab::eval::localise::LocaliseTarget;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
@@ -332,6 +333,13 @@ pub struct LocaliseArgs {
     pub seed: u64,
     #[arg(long, default_value = "auto")]
     pub device: String,
+    /// `grasp`: the task's grasp position, told the task; `objects`: all four objects' positions, not told it.
+    #[arg(long, default_value = "grasp", value_parser = parse_localise_target)]
+    pub target: LocaliseTarget,
+}
+
+fn parse_localise_target(s: &str) -> Result<LocaliseTarget, String> {
+    parse_named(s)
 }
 
 /// Arguments of the `run` command.

@@ -5,7 +5,7 @@ use anyhow::{Result, bail};
 use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
 use oneshot_lab::device::parse_device;
 use oneshot_lab::eval::layouts::{Layouts, training_seeds};
-use oneshot_lab::eval::localise::LocaliseConfig;
+use oneshot_lab::eval::localise::{LocaliseConfig, LocaliseTarget};
 use oneshot_lab::eval::probe::{open_loop, print_probe};
 use oneshot_lab::eval::run::run_eval;
 use oneshot_lab::eval::summary::print_summary;
@@ -73,14 +73,19 @@ pub fn localise(a: LocaliseArgs) -> Result<()> {
         hold_out_every: 5,
         report_every: a.report_every,
         seed: a.seed,
+        target: a.target,
     };
     let r = oneshot_lab::eval::localise::localise(&a.agents, &config, parse_device(&a.device)?)?;
     let cm = |e: [f64; 2]| format!("{:5.2} / {:5.2}", 100.0 * e[0], 100.0 * e[1]);
+    let (what, baseline) = match a.target {
+        LocaliseTarget::Grasp => ("the task's grasp position", "per-task mean position"),
+        LocaliseTarget::Objects => ("the four objects' positions", "mean position of each object"),
+    };
     println!(
-        "grasp position from the first frame ({}x{}; {} training, {} held-out layouts), mean absolute error x / y (cm)",
+        "{what} from the first frame ({}x{}; {} training, {} held-out layouts), mean absolute error x / y (cm)",
         r.height, r.width, r.train_frames, r.held_out_frames
     );
-    println!("per-task mean position, held out: {}", cm(r.mean_baseline));
+    println!("{baseline}, held out: {}", cm(r.mean_baseline));
     println!("{:>6}  {:>13}  {:>13}", "step", "training", "held out");
     for e in &r.curve {
         println!("{:>6}  {:>13}  {:>13}", e.step, cm(e.train), cm(e.held_out));

@@ -1,8 +1,10 @@
 //! The localisation check: can the policy's image trunk find the object at all at a given frame size? A ResNet-18
-//! trunk (the policy's widths), spatial softmax and a small MLP told the task are trained to regress the grasp
-//! position from each agent trajectory's first frame, where the arm is still at its start pose and only the
-//! picture says where the object lies, and scored on held-out layouts against predicting the mean. It measures the
-//! data and the trunk, not the policy: a frame size at which this fails cannot support a policy that succeeds.
+//! trunk (the policy's widths), spatial softmax and a small MLP are trained to regress positions from each agent
+//! trajectory's first frame, where the arm is still at its start pose and only the picture says where the objects
+//! lie, and scored on held-out layouts against predicting the mean. Two targets separate two skills: the grasp
+//! position of the trajectory's task, told the task (finding *the demonstrated* object, what a policy must do),
+//! and the positions of all four objects, told nothing (finding objects at all). It measures the data and the
+//! trunk, not the policy: a frame size at which this fails cannot support a policy that succeeds.
 use crate::data::augment::AugmentDraw;
 use crate::data::manifest::Manifest;
 use crate::data::trajectory::Trajectory;
@@ -10,9 +12,20 @@ use crate::model::heads::spatial_softmax;
 use crate::model::resnet::ResNet18;
 use crate::sim::task::NUM_TASKS;
 use anyhow::{Result, bail};
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 use tch::nn::{self, Module, ModuleT, OptimizerConfig};
 use tch::{Device, Kind, Tensor};
+
+/// What the check regresses from a first frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LocaliseTarget {
+    /// The grasp position of the trajectory's task, with the task as a one-hot input.
+    Grasp,
+    /// The x, y of each of the four objects, without the task.
+    Objects,
+}
 
 /// The trunk and its training.
 #[derive(Debug, Clone, PartialEq)]
@@ -27,9 +40,10 @@ pub struct LocaliseConfig {
     /// Errors are measured every this many steps.
     pub report_every: u64,
     pub seed: u64,
+    pub target: LocaliseTarget,
 }
 
-/// Mean absolute errors of the grasp position (x, y, in metres) at one step.
+/// Mean absolute errors of the target positions (x, y, in metres, averaged over objects) at one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LocaliseErrors {
     pub step: u64,
@@ -44,21 +58,34 @@ pub struct LocaliseReport {
     pub held_out_frames: usize,
     pub height: usize,
     pub width: usize,
-    /// Predicting the training frames' mean grasp position of each task, on the held-out frames.
+    /// Predicting the training frames' mean target on the held-out frames (for `Grasp`, each task's mean).
     pub mean_baseline: [f64; 2],
     pub curve: Vec<LocaliseErrors>,
 }
 
-/// First frames (normalised, `[N, 3, H, W]`), task one-hots `[N, 16]` and grasp positions `[N, 2]` of a collection.
+/// First frames (normalised, `[N, 3, H, W]`), task one-hots `[N, 16]` and targets `[N, 2k]` (x, y of k points)
+/// of a collection.
 struct FirstFrames {
     frames: Tensor,
     tasks: Tensor,
-    grasps: Tensor,
+    targets: Tensor,
 }
 
-fn first_frames(dir: &Path, pick: impl Fn(usize) -> bool) -> Result<(FirstFrames, usize, usize)> {
+/// The x, y positions `target` names in trajectory `t` at its first frame.
+fn target_positions(t: &Trajectory, target: LocaliseTarget) -> Vec<f32> {
+    match target {
+        LocaliseTarget::Grasp => t.grasp_and_drop()[..2].to_vec(),
+        LocaliseTarget::Objects => t.object_poses[0].iter().flat_map(|pose| [pose[0], pose[1]]).collect(),
+    }
+}
+
+fn first_frames(
+    dir: &Path,
+    target: LocaliseTarget,
+    pick: impl Fn(usize) -> bool,
+) -> Result<(FirstFrames, usize, usize)> {
     let manifest = Manifest::load(dir)?;
-    let (mut frames, mut tasks, mut grasps, mut size) = (vec![], vec![], vec![], (0, 0));
+    let (mut frames, mut tasks, mut targets, mut size) = (vec![], vec![], vec![], (0, 0));
     for (_, entry) in manifest.trajectories.iter().enumerate().filter(|(i, _)| pick(*i)) {
         let t = Trajectory::from_bytes(&entry.read_verified(dir)?)?;
         let (h, w) = (t.meta.height, t.meta.width);
@@ -69,8 +96,7 @@ fn first_frames(dir: &Path, pick: impl Fn(usize) -> bool) -> Result<(FirstFrames
         let mut onehot = [0f32; NUM_TASKS];
         onehot[t.meta.task] = 1.0;
         tasks.push(Tensor::from_slice(&onehot));
-        let g = t.grasp_and_drop();
-        grasps.push(Tensor::from_slice(&[g[0], g[1]]));
+        targets.push(Tensor::from_slice(&target_positions(&t, target)));
     }
     if frames.is_empty() {
         bail!("{} holds no trajectories for this split", dir.display());
@@ -78,13 +104,14 @@ fn first_frames(dir: &Path, pick: impl Fn(usize) -> bool) -> Result<(FirstFrames
     let set = FirstFrames {
         frames: Tensor::stack(&frames, 0),
         tasks: Tensor::stack(&tasks, 0),
-        grasps: Tensor::stack(&grasps, 0),
+        targets: Tensor::stack(&targets, 0),
     };
     Ok((set, size.0, size.1))
 }
 
+/// Mean absolute x and y errors over frames and points of predictions `[N, 2k]`.
 fn errors(pred: &Tensor, truth: &Tensor) -> [f64; 2] {
-    let e = (pred - truth).abs().mean_dim([0i64].as_slice(), false, Kind::Double);
+    let e = (pred - truth).abs().view([-1, 2]).mean_dim([0i64].as_slice(), false, Kind::Double);
     [e.double_value(&[0]), e.double_value(&[1])]
 }
 
@@ -94,32 +121,37 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         bail!("localise: hold_out_every must be at least 2, batch, steps and report_every at least 1");
     }
     let every = config.hold_out_every;
-    let (train, height, width) = first_frames(dir, |i| i % every != 0)?;
-    let (held_out, _, _) = first_frames(dir, |i| i % every == 0)?;
+    let (train, height, width) = first_frames(dir, config.target, |i| i % every != 0)?;
+    let (held_out, _, _) = first_frames(dir, config.target, |i| i % every == 0)?;
     // The targets are standardised by the training frames' statistics, as a regression head would want.
-    let mean = train.grasps.mean_dim([0i64].as_slice(), true, Kind::Float);
-    let scale = train.grasps.std_dim([0i64].as_slice(), false, true).clamp_min(1e-3);
-    // Per-task means: what a policy that knows the task but not the layout would predict.
-    let counts = train.tasks.sum_dim_intlist([0i64].as_slice(), false, Kind::Float).clamp_min(1.0).unsqueeze(1);
-    let task_means = train.tasks.transpose(0, 1).matmul(&train.grasps) / counts;
-    let mean_baseline = errors(&held_out.tasks.matmul(&task_means), &held_out.grasps);
+    let mean = train.targets.mean_dim([0i64].as_slice(), true, Kind::Float);
+    let scale = train.targets.std_dim([0i64].as_slice(), false, true).clamp_min(1e-3);
+    let told_task = config.target == LocaliseTarget::Grasp;
+    let mean_baseline = if told_task {
+        // Per-task means: what a policy that knows the task but not the layout would predict.
+        let counts = train.tasks.sum_dim_intlist([0i64].as_slice(), false, Kind::Float).clamp_min(1.0).unsqueeze(1);
+        let task_means = train.tasks.transpose(0, 1).matmul(&train.targets) / counts;
+        errors(&held_out.tasks.matmul(&task_means), &held_out.targets)
+    } else {
+        errors(&mean.expand_as(&held_out.targets), &held_out.targets)
+    };
 
     tch::manual_seed(crate::seeds::derive_seed("localise", &[config.seed]) as i64);
     let vs = nn::VarStore::new(device);
     let root = vs.root();
     let trunk = ResNet18::new(&(&root / "backbone"), config.backbone_width, config.backbone_stages);
-    let features = 2 * trunk.out_channels() + NUM_TASKS as i64;
+    let features = 2 * trunk.out_channels() + if told_task { NUM_TASKS as i64 } else { 0 };
     let hidden = nn::linear(&root / "hidden", features, 64, Default::default());
-    let out = nn::linear(&root / "out", 64, 2, Default::default());
+    let out = nn::linear(&root / "out", 64, train.targets.size()[1], Default::default());
     let forward = |frames: &Tensor, tasks: &Tensor, train: bool| {
         let points = spatial_softmax(&trunk.forward_t(&frames.to_device(device), train));
-        let x = Tensor::cat(&[points, tasks.to_device(device)], 1);
+        let x = if told_task { Tensor::cat(&[points, tasks.to_device(device)], 1) } else { points };
         out.forward(&hidden.forward(&x).relu()).to_device(Device::Cpu) * &scale + &mean
     };
     let score = |set: &FirstFrames| {
         let n = set.frames.size()[0].min(256);
         let pred = tch::no_grad(|| forward(&set.frames.narrow(0, 0, n), &set.tasks.narrow(0, 0, n), false));
-        errors(&pred, &set.grasps.narrow(0, 0, n))
+        errors(&pred, &set.targets.narrow(0, 0, n))
     };
     let mut opt = nn::Adam::default().build(&vs, config.lr)?;
     let n = train.frames.size()[0];
@@ -133,7 +165,7 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         }
         let idx = Tensor::randint(n, [config.batch], (Kind::Int64, Device::Cpu));
         let pred = forward(&train.frames.index_select(0, &idx), &train.tasks.index_select(0, &idx), true);
-        let target = train.grasps.index_select(0, &idx);
+        let target = train.targets.index_select(0, &idx);
         let loss = ((pred - target) / &scale).square().mean(Kind::Float);
         opt.backward_step(&loss);
     }
