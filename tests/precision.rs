@@ -1,10 +1,10 @@
 //! bf16 autocast (`train.precision = "bf16"`): on inside its scope only, and a training step's losses and gradients
 //! stay close to the fp32 step's for every architecture.
+use oneshot_lab::autocast::{Autocast, full_precision};
 use oneshot_lab::data::loader::DeviceBatch;
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::policy::Policy;
-use oneshot_lab::train::autocast::Autocast;
 use oneshot_lab::train::config::{LossWeights, Precision, TrainConfig, check_precision};
 use tch::{Device, Kind, Tensor, nn};
 
@@ -21,6 +21,8 @@ fn autocast_runs_matrix_products_in_bf16_inside_its_scope_only() {
         assert!(Autocast::active(Device::Cpu));
         assert_eq!(a.matmul(&b).kind(), Kind::BFloat16);
         assert_eq!(a.exp().kind(), Kind::Float, "elementwise operations keep their type");
+        assert_eq!(full_precision(|| a.matmul(&b)).kind(), Kind::Float, "full_precision suspends autocast");
+        assert!(Autocast::active(Device::Cpu), "and restores it after");
     }
     assert!(!Autocast::active(Device::Cpu), "the scope's end restores fp32");
     assert_eq!(a.matmul(&b).kind(), Kind::Float);

@@ -96,8 +96,8 @@ impl Precision {
     }
 
     /// The autocast scope this precision needs on `device`, if any.
-    pub fn scope(self, device: Device) -> Option<super::autocast::Autocast> {
-        (self == Precision::Bf16).then(|| super::autocast::Autocast::bf16(device))
+    pub fn scope(self, device: Device) -> Option<crate::autocast::Autocast> {
+        (self == Precision::Bf16).then(|| crate::autocast::Autocast::bf16(device))
     }
 }
 

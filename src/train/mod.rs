@@ -1,7 +1,6 @@
 //! Training the policy: Adam on BC + inverse-dynamics + point losses, validation at fixed intervals,
 //! checkpoints with resume, and a loss curve.
 pub mod adam;
-pub mod autocast;
 pub mod checkpoint;
 pub mod config;
 pub mod curve;

@@ -5,12 +5,13 @@
 //! No attention anywhere. The heads and losses are the transformer's: behaviour cloning from [task, frame],
 //! inverse dynamics from consecutive frames, and the point from the task.
 use super::Registration;
+use crate::autocast::full_precision;
 use crate::model::config::ModelConfig;
 use crate::model::heads::{PolicyHeads, spatial_softmax};
 use crate::model::policy::{PolicyNet, PolicyOutput};
 use crate::model::resnet::ResNet18;
-use tch::Tensor;
 use tch::nn::{self, Module, ModuleT, RNN};
+use tch::{Kind, Tensor};
 
 /// The small conv net, no recurrence.
 pub const CONV: Registration = Registration {
@@ -204,7 +205,8 @@ impl PolicyNet for AblatedPolicy {
         let task = self.to_task.forward(&feats.narrow(1, 0, tc + 1).reshape([b, -1]));
         let mut latents = self.to_latent.forward(&feats);
         if let Some(lstm) = &self.lstm {
-            latents = lstm.seq(&latents).0;
+            // In fp32 under bf16 autocast too (see `full_precision`).
+            latents = full_precision(|| lstm.seq(&latents.to_kind(Kind::Float)).0);
         }
         self.heads.forward(&task, &latents.narrow(1, tc, ta))
     }

@@ -4,6 +4,7 @@
 //! point loss weights to 0); with the full losses, its inverse-dynamics head reads consecutive frame embeddings
 //! and its point head the encoded context.
 use super::Registration;
+use crate::autocast::full_precision;
 use crate::model::config::ModelConfig;
 use crate::model::heads::{EmbeddingMlp, PointHead, spatial_softmax};
 use crate::model::mixture::{MixtureHead, MixtureSpec};
@@ -70,9 +71,14 @@ impl PolicyNet for ContextualLstm {
 
     fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
         let (tc, ta) = (context.size()[1], agent.size()[1]);
-        let (encoded, state) = self.encoder.seq(&self.embed_frames(context, train));
+        let context_frames = self.embed_frames(context, train);
         let frames = self.embed_frames(agent, train);
-        let (decoded, _) = self.decoder.seq_init(&frames, &state);
+        // The recurrences run in fp32 under bf16 autocast too (see `full_precision`).
+        let (encoded, decoded) = full_precision(|| {
+            let (encoded, state) = self.encoder.seq(&context_frames.to_kind(Kind::Float));
+            let (decoded, _) = self.decoder.seq_init(&frames.to_kind(Kind::Float), &state);
+            (encoded, decoded)
+        });
         // Each decoder step attends over every context step and the decoder steps up to itself.
         let memory = Tensor::cat(&[&encoded, &decoded], 1);
         let scale = (decoded.size()[2] as f64).sqrt();

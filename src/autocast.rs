@@ -72,3 +72,38 @@ impl Drop for Autocast {
         }
     }
 }
+
+/// Runs `f` with autocast off on CPU and CUDA (what `torch.autocast(enabled=False)` does), for operations that
+/// must not run in bf16: oneDNN has no bf16 LSTM on CPUs without bf16 instructions, where it fails to build its
+/// kernel instead of falling back. Inputs made inside an autocast scope may be bf16: cast them to fp32 first.
+pub fn full_precision<T>(f: impl FnOnce() -> T) -> T {
+    let _restore = Suspended::new();
+    f()
+}
+
+/// Autocast switched off on both devices until dropped, which restores what was on.
+struct Suspended {
+    was_enabled: [(i8, bool); 2],
+}
+
+impl Suspended {
+    fn new() -> Suspended {
+        // SAFETY: reads and writes of ATen's thread-local autocast state with valid device codes.
+        unsafe {
+            let was_enabled = [DEVICE_CPU, DEVICE_CUDA].map(|d| (d, is_autocast_enabled(d)));
+            for (d, _) in was_enabled {
+                set_autocast_enabled(d, false);
+            }
+            Suspended { was_enabled }
+        }
+    }
+}
+
+impl Drop for Suspended {
+    fn drop(&mut self) {
+        for (d, on) in self.was_enabled {
+            // SAFETY: restores the state read in `new`.
+            unsafe { set_autocast_enabled(d, on) };
+        }
+    }
+}
