@@ -128,7 +128,7 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
     assert!(err.contains("train.loss.pose = 300"), "{err}");
     check_heads(&ModelConfig { pose_head: true, ..tiny() }, &weighted).unwrap();
 
-    for name in ["contextual_lstm", "daml"] {
+    for name in ["contextual_lstm", "daml", "daml_resnet"] {
         let model = ModelConfig { architecture: Architecture::named(name), pose_head: true, ..tiny() };
         let err = model.validate().unwrap_err().to_string();
         assert!(err.contains("model.pose_head") && err.contains(name), "{err}");
@@ -177,6 +177,13 @@ fn pretrained_backbone_weights_load_by_torchvision_name() {
     let loaded = vs.variables();
     for (name, t) in &names {
         assert!(t.equal(&loaded[&format!("backbone.{name}")]), "{name}");
+    }
+    // DAML's ResNet trunk option takes the same file, batch-norm statistics included.
+    let daml = ModelConfig { architecture: Architecture::named("daml_resnet"), ..model.clone() };
+    let (vs, _) = build_policy(&daml, Device::Cpu).unwrap();
+    let loaded = vs.variables();
+    for (name, t) in &names {
+        assert!(t.equal(&loaded[&format!("backbone.{name}")]), "daml_resnet: {name}");
     }
     let wrong = ModelConfig { backbone_width: 16, ..model };
     let err = format!("{:#}", build_policy(&wrong, Device::Cpu).unwrap_err());

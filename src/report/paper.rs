@@ -17,7 +17,8 @@ pub fn paper_stages(row: &ResultRow) -> Option<[Option<(f64, f64)>; 3]> {
     if row.policy != "model" || row.size != Some(1600) {
         return None;
     }
-    if row.architecture.as_deref() == Some("daml") {
+    // The paper does not say which of DAML's two trunks its rows used: both are compared with them.
+    if matches!(row.architecture.as_deref(), Some("daml" | "daml_resnet")) {
         let scripted = row.control.as_deref() == Some("scripted_poses");
         return Some(if scripted { DAML_AUXILIARY_TABLE1 } else { DAML_TABLE1 }.map(Some));
     }
@@ -47,6 +48,7 @@ mod tests {
         assert_eq!(paper_placed(&row("daml", None, 1600)), Some(6.9));
         assert_eq!(paper_placed(&row("daml", Some("scripted_poses"), 1600)), Some(13.3));
         assert_eq!(paper_placed(&row("contextual_lstm", None, 1600)), Some(23.8));
+        assert_eq!(paper_placed(&row("daml_resnet", None, 1600)), Some(6.9));
         assert_eq!(paper_placed(&row("daml", None, 160)), None, "the paper reports N = 1600 only");
     }
 }

@@ -5,10 +5,11 @@
 //! MLP with LayerNorm over the context frames' features. Per task, the conv net and action MLP take one gradient
 //! step (lr 0.1) on the learned loss of the demonstrator's video; the adapted network then acts, frame by frame, and
 //! is trained through that step (second order) on behaviour cloning plus the grasp-and-drop regression.
+//! `daml_resnet` is the same with the authors' ResNet-18 trunk option (`n_final_convs = "resnet"`).
 use super::Registration;
+use super::daml_trunk::{self, Trunk, TrunkKind};
 use crate::data::loader::DeviceBatch;
 use crate::model::config::ModelConfig;
-use crate::model::heads::spatial_softmax;
 use crate::model::mixture::{MixtureHead, MixtureParams, MixtureSpec, mixture_nll};
 use crate::model::policy::{Losses, PolicyNet, PolicyOutput};
 use tch::nn::{self, Module};
@@ -24,7 +25,16 @@ pub const DAML: Registration = Registration {
     // Its inner gradient step carries bf16 rounding into the adapted weights: the outer gradient turns away from
     // fp32's (tests/precision.rs measured a cosine of 0.4).
     bf16: false,
-    build: |vs, config| Box::new(Daml::new(vs, config)),
+    build: |vs, config| Box::new(Daml::new(vs, config, TrunkKind::Conv)),
+};
+
+/// DAML with the authors' ResNet-18 trunk option: ResNet-18, spatial softmax and an embedding MLP, all adapted by
+/// the inner step.
+pub const DAML_RESNET: Registration = Registration {
+    name: "daml_resnet",
+    description: "DAML with a ResNet-18 trunk (the authors' `n_final_convs = \"resnet\"`)",
+    build: |vs, config| Box::new(Daml::new(vs, config, TrunkKind::ResNet)),
+    ..DAML
 };
 
 /// Learning rate of the inner step (the authors' `maml_lr`).
@@ -36,21 +46,13 @@ const POSE_HIDDEN: i64 = 32;
 /// Grasp position then drop position, (x, y, z) each, in metres.
 pub const POSE_DIM: i64 = 6;
 
-/// One convolution of the adapted trunk: 3x3, padding 1.
-#[derive(Debug, Clone, Copy)]
-struct ConvSpec {
-    input: i64,
-    output: i64,
-    stride: i64,
-    /// A 2x2 max-pool follows (the end of VGG-16's first block).
-    pool: bool,
-}
-
 /// The DAML network. Parameters that the inner step adapts (the trunk and the action MLP) are applied
 /// functionally, so that a forward pass can run with adapted copies of them.
 #[derive(Debug)]
 pub struct Daml {
-    convs: Vec<(ConvSpec, nn::Conv2D)>,
+    trunk: Trunk,
+    /// How many of the adapted weights are the trunk's (the action MLP's follow).
+    trunk_weights: usize,
     action_mlp: Vec<nn::Linear>,
     head: MixtureHead,
     pose: [nn::Linear; 2],
@@ -77,28 +79,16 @@ impl Module for LearnedLoss {
 }
 
 impl Daml {
-    /// Builds the network under `vs`: the first block's channels are `model.backbone_width` (VGG-16's 64), the
-    /// last two convolutions' too.
-    pub fn new(vs: &nn::Path, config: &ModelConfig) -> Daml {
-        let w = config.backbone_width;
-        let specs = [
-            ("backbone/features/0", ConvSpec { input: 3, output: w, stride: 1, pool: false }),
-            ("backbone/features/2", ConvSpec { input: w, output: w, stride: 1, pool: true }),
-            ("conv3", ConvSpec { input: w, output: w, stride: 2, pool: false }),
-            ("conv4", ConvSpec { input: w, output: w, stride: 2, pool: false }),
-            ("conv5", ConvSpec { input: w, output: w, stride: 1, pool: false }),
-        ];
-        let convs = specs
-            .iter()
-            .map(|&(name, s)| {
-                let mut parts = name.split('/');
-                let first = vs / parts.next().expect("a name has a part");
-                let path = parts.fold(first, |p, part| &p / part);
-                let c = nn::ConvConfig { stride: s.stride, padding: 1, ..Default::default() };
-                (s, nn::conv2d(path, s.input, s.output, 3, c))
-            })
-            .collect();
-        let features = 2 * w;
+    /// Builds the network under `vs` with the given trunk: the conv trunk's channels are `model.backbone_width`
+    /// (VGG-16's 64); the ResNet trunk is `model.backbone_width` and `model.backbone_stages` wide and deep, and its
+    /// embedding `model.embed_hidden` wide (the authors' 256).
+    pub fn new(vs: &nn::Path, config: &ModelConfig, trunk: TrunkKind) -> Daml {
+        let trunk = match trunk {
+            TrunkKind::Conv => Trunk::conv(vs, config.backbone_width),
+            TrunkKind::ResNet => Trunk::resnet(vs, config.backbone_width, config.backbone_stages, config.embed_hidden),
+        };
+        let features = trunk.features();
+        let trunk_weights = trunk.params().len();
         let mlp = vs / "action_mlp";
         let action_mlp = [(features, ACTION_HIDDEN), (ACTION_HIDDEN, ACTION_HIDDEN), (ACTION_HIDDEN, ACTION_HIDDEN)]
             .iter()
@@ -110,7 +100,7 @@ impl Daml {
         let (wide, narrow) =
             (config.context_len() as i64 * (ACTION_HIDDEN + features), ACTION_HIDDEN * config.context_len() as i64);
         Daml {
-            convs,
+            trunk,
             action_mlp,
             head: MixtureHead::new(&(vs / "action_head"), ACTION_HIDDEN, MixtureSpec::for_model(config)),
             pose: [
@@ -124,53 +114,34 @@ impl Daml {
                 norm2: nn::layer_norm(&loss / "norm2", vec![narrow], Default::default()),
                 out: nn::linear(&loss / "2", narrow, 1, Default::default()),
             },
+            trunk_weights,
             channels_last: false,
         }
     }
 
     /// The parameters the inner step adapts (the trunk's, then the action MLP's), as they are before it.
     pub fn initial_weights(&self) -> Vec<Tensor> {
-        let conv = self.convs.iter().flat_map(|(_, c)| [c.ws.shallow_clone(), bias(&c.bs)]);
         let mlp = self.action_mlp.iter().flat_map(|l| [l.ws.shallow_clone(), bias(&l.bs)]);
-        conv.chain(mlp).collect()
+        self.trunk.params().into_iter().chain(mlp).collect()
     }
 
-    /// Spatial-softmax features `[B, T, 2C]` of normalised frames `[B, T, 3, H, W]`, task `b` seen through its own
-    /// weights (`weights[k]` is `[B, ...]`, one copy per task). The tasks run as the groups of one grouped
-    /// convolution: frames become the batch, each task's channels one group.
-    fn embed(&self, weights: &[Tensor], frames: &Tensor) -> Tensor {
-        let &[b, t, c, h, w] = frames.size().as_slice() else { panic!("frames are [B, T, 3, H, W]") };
-        let mut y = frames.transpose(0, 1).reshape([t, b * c, h, w]);
-        if self.channels_last {
-            y = y.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2]);
-        }
-        for (k, (spec, _)) in self.convs.iter().enumerate() {
-            let (kernel, bias) = (&weights[2 * k], &weights[2 * k + 1]);
-            let grouped = kernel.reshape([b * spec.output, spec.input, 3, 3]);
-            y = y.conv2d(&grouped, Some(&bias.reshape([-1])), [spec.stride], [1], [1], b).relu();
-            if spec.pool {
-                y = y.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
-            }
-        }
-        let &[_, _, fh, fw] = y.size().as_slice() else { panic!("feature maps are 4-D") };
-        let maps = y.reshape([t, b, -1, fh, fw]).transpose(0, 1).reshape([b * t, -1, fh, fw]);
-        spatial_softmax(&maps).reshape([b, t, -1])
+    /// Trunk features `[B, T, F]` of frames `[B, T, 3, H, W]`, each task under its own weights.
+    fn embed(&self, weights: &[Tensor], frames: &Tensor, train: bool) -> Tensor {
+        self.trunk.embed(&weights[..self.trunk_weights], frames, train, self.channels_last)
     }
 
-    /// The action MLP's output `[B, T, 50]` for features `[B, T, 2C]`, each task under its own weights.
+    /// The action MLP's output `[B, T, 50]` for features `[B, T, F]`, each task under its own weights.
     fn act(&self, weights: &[Tensor], features: &Tensor) -> Tensor {
-        let offset = 2 * self.convs.len();
-        (0..self.action_mlp.len()).fold(features.shallow_clone(), |x, i| {
-            let (kernel, bias) = (&weights[offset + 2 * i], &weights[offset + 2 * i + 1]);
-            (x.matmul(&kernel.transpose(1, 2)) + bias.unsqueeze(1)).relu()
-        })
+        let mut weights = weights[self.trunk_weights..].iter();
+        self.action_mlp.iter().fold(features.shallow_clone(), |x, _| daml_trunk::linear(&mut weights, &x).relu())
     }
 
     /// Each task's weights (`[B, ...]` per parameter) after one inner step on the learned loss of its context
-    /// frames (`context` is `[B, Tc, 3, H, W]`). With `second_order` (training), an outer loss differentiates
-    /// through the step's gradient, which is how the learned loss is trained; otherwise that gradient is a constant
-    /// (first-order MAML: the outer gradient still reaches the initial weights, never the learned loss).
-    pub fn adapt(&self, context: &Tensor, second_order: bool) -> Vec<Tensor> {
+    /// frames (`context` is `[B, Tc, 3, H, W]`). With `train`, an outer loss differentiates through the step's
+    /// gradient (second order), which is how the learned loss is trained, and the ResNet trunk normalises with
+    /// batch statistics and drops out; otherwise that gradient is a constant (first-order MAML: the outer gradient
+    /// still reaches the initial weights, never the learned loss).
+    pub fn adapt(&self, context: &Tensor, train: bool) -> Vec<Tensor> {
         let tasks = context.size()[0];
         tch::with_grad(|| {
             let weights: Vec<Tensor> = self
@@ -182,15 +153,15 @@ impl Daml {
                     w.unsqueeze(0).repeat(repeats.as_slice())
                 })
                 .collect();
-            let features = self.embed(&weights, context);
+            let features = self.embed(&weights, context, train);
             let input = Tensor::cat(&[self.act(&weights, &features), features], -1).reshape([tasks, -1]);
             // Tasks are independent, so the gradient of the summed loss is each task's own gradient.
             let loss = self.learned_loss.forward(&input).sum(Kind::Float);
-            let grads = Tensor::run_backward(&[loss], &weights, second_order, second_order);
+            let grads = Tensor::run_backward(&[loss], &weights, train, train);
             weights
                 .iter()
                 .zip(grads)
-                .map(|(w, g)| if second_order { w - g * INNER_LR } else { w - g.detach() * INNER_LR })
+                .map(|(w, g)| if train { w - g * INNER_LR } else { w - g.detach() * INNER_LR })
                 .collect()
         })
     }
@@ -199,7 +170,7 @@ impl Daml {
     /// `[B, Tc, 3, H, W]` and agent frames `[B, Ta, 3, H, W]`, each task under the weights adapted to its context.
     fn batch_outputs(&self, context: &Tensor, agent: &Tensor, train: bool) -> (MixtureParams, Tensor) {
         let weights = self.adapt(context, train);
-        let features = self.embed(&weights, agent);
+        let features = self.embed(&weights, agent, train);
         let actions = self.head.forward(&self.act(&weights, &features));
         let first = features.select(1, 0);
         let poses = self.pose[1].forward(&self.pose[0].forward(&first).relu());
@@ -208,7 +179,7 @@ impl Daml {
 }
 
 /// A layer's bias (every layer here has one).
-fn bias(b: &Option<Tensor>) -> Tensor {
+pub(super) fn bias(b: &Option<Tensor>) -> Tensor {
     b.as_ref().expect("layers are built with a bias").shallow_clone()
 }
 

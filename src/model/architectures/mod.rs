@@ -3,6 +3,7 @@
 //! [`super::policy::PolicyNet`].
 pub mod ablated;
 pub mod daml;
+pub mod daml_trunk;
 pub mod lstm;
 pub mod transformer;
 
@@ -36,6 +37,7 @@ pub static ARCHITECTURES: &[Registration] = &[
     ablated::RESNET,
     ablated::RESNET_LSTM,
     daml::DAML,
+    daml::DAML_RESNET,
 ];
 
 /// The entry named `name`.
