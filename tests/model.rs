@@ -185,6 +185,29 @@ fn pretrained_backbone_weights_load_by_torchvision_name() {
     for (name, t) in &names {
         assert!(t.equal(&loaded[&format!("backbone.{name}")]), "daml_resnet: {name}");
     }
+    // DAML's conv trunk takes VGG-16's first block by its torchvision names.
+    let vgg_path = dir.join("vgg16.safetensors");
+    let vgg: Vec<(String, Tensor)> = [("features.0.weight", vec![8, 3, 3, 3]), ("features.2.weight", vec![8, 8, 3, 3])]
+        .into_iter()
+        .flat_map(|(name, shape)| {
+            let bias = name.replace("weight", "bias");
+            [
+                (name.to_string(), Tensor::randn(shape, (Kind::Float, Device::Cpu))),
+                (bias, Tensor::randn([8], (Kind::Float, Device::Cpu))),
+            ]
+        })
+        .collect();
+    Tensor::write_safetensors(&vgg, &vgg_path).unwrap();
+    let daml = ModelConfig {
+        architecture: Architecture::named("daml"),
+        pretrained_backbone: Some(vgg_path.to_string_lossy().into()),
+        ..tiny()
+    };
+    let (vs, _) = build_policy(&daml, Device::Cpu).unwrap();
+    let loaded = vs.variables();
+    for (name, t) in &vgg {
+        assert!(t.equal(&loaded[&format!("backbone.{name}")]), "daml: {name}");
+    }
     let wrong = ModelConfig { backbone_width: 16, ..model };
     let err = format!("{:#}", build_policy(&wrong, Device::Cpu).unwrap_err());
     assert!(err.contains("resnet18.safetensors") && err.contains("pretrained_backbone"), "{err}");
