@@ -134,18 +134,48 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         report_every: 50,
         seed: 0,
         target: LocaliseTarget::Grasp,
+        trunk_out: None,
+        augmentation: None,
     };
-    for target in [LocaliseTarget::Grasp, LocaliseTarget::Objects] {
-        let r = localise(&dir.join("panda"), &LocaliseConfig { target, ..config.clone() }, tch::Device::Cpu).unwrap();
+    let trunk_file = dir.join("trunk.safetensors");
+    let mut last_train = vec![];
+    let jitter = oneshot_lab::data::augment::Augmentation::default();
+    for (target, augmentation) in
+        [(LocaliseTarget::Grasp, None), (LocaliseTarget::Objects, None), (LocaliseTarget::Objects, Some(jitter))]
+    {
+        let trunk_out = (target == LocaliseTarget::Objects && augmentation.is_none()).then(|| trunk_file.clone());
+        let run = LocaliseConfig { target, trunk_out, augmentation, ..config.clone() };
+        let r = localise(&dir.join("panda"), &run, tch::Device::Cpu).unwrap();
+        last_train.push(r.curve[3].train);
         assert_eq!((r.train_frames, r.held_out_frames, r.height, r.width), (16, 4, 32, 40));
         assert_eq!(r.curve.iter().map(|e| e.step).collect::<Vec<_>>(), [0, 50, 100, 150]);
         let (first, last) = (r.curve[0].train, r.curve[3].train);
+        // Augmented frames are harder to fit in 150 steps: they need only to have started.
+        let goal = if run.augmentation.is_some() { 0.9 } else { 0.5 };
         assert!(
-            last[0] + last[1] < 0.5 * (first[0] + first[1]),
+            last[0] + last[1] < goal * (first[0] + first[1]),
             "{target:?}: error did not fall: {first:?} -> {last:?}"
         );
         // Objects lie anywhere in the 40 x 50 cm source bin: the mean misses by centimetres, not metres.
         assert!(r.mean_baseline.iter().all(|&e| e > 0.01 && e < 0.2), "{target:?}: {:?}", r.mean_baseline);
+    }
+    // Augmented training frames (same seed, same batches) train a different trunk.
+    assert_ne!(last_train[1], last_train[2]);
+    // The trained trunk starts a policy of the same widths through `model.pretrained_backbone`: every one of the
+    // policy's trunk tensors (batch-norm statistics included) is the saved one.
+    let saved: std::collections::HashMap<String, tch::Tensor> =
+        tch::Tensor::read_safetensors(&trunk_file).unwrap().into_iter().collect();
+    let model = oneshot_lab::model::config::ModelConfig {
+        backbone_width: 8,
+        backbone_stages: 2,
+        pretrained_backbone: Some(trunk_file.to_string_lossy().into()),
+        ..Default::default()
+    };
+    let (vs, _) = oneshot_lab::train::build_policy(&model, tch::Device::Cpu).unwrap();
+    let trunk: Vec<_> = vs.variables().into_iter().filter(|(n, _)| n.starts_with("backbone.")).collect();
+    assert_eq!(trunk.len(), saved.len());
+    for (name, t) in &trunk {
+        assert!(t.equal(&saved[&name["backbone.".len()..]]), "{name}");
     }
 
     let missing = localise(&dir.join("nowhere"), &config, tch::Device::Cpu).unwrap_err();

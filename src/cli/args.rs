@@ -336,6 +336,13 @@ pub struct LocaliseArgs {
     /// `grasp`: the task's grasp position, told the task; `objects`: all four objects' positions, not told it.
     #[arg(long, default_value = "grasp", value_parser = parse_localise_target)]
     pub target: LocaliseTarget,
+    /// Augmentation of the training frames: `none`, `authors` (the policy's default colour jitter, crops and
+    /// shifts) or `colour` (the colour jitter alone).
+    #[arg(long, default_value = "none", value_parser = ["none", "authors", "colour"])]
+    pub augment: String,
+    /// Write the trained trunk here (safetensors with torchvision names), for `model.pretrained_backbone`.
+    #[arg(long)]
+    pub save_trunk: Option<PathBuf>,
 }
 
 fn parse_localise_target(s: &str) -> Result<LocaliseTarget, String> {

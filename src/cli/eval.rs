@@ -2,6 +2,7 @@
 use super::args::{EvalArgs, LocaliseArgs, ProbeArgs, parse_named};
 use super::default_workers;
 use anyhow::{Result, bail};
+use oneshot_lab::data::augment::Augmentation;
 use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
 use oneshot_lab::device::parse_device;
 use oneshot_lab::eval::layouts::{Layouts, training_seeds};
@@ -74,6 +75,12 @@ pub fn localise(a: LocaliseArgs) -> Result<()> {
         report_every: a.report_every,
         seed: a.seed,
         target: a.target,
+        trunk_out: a.save_trunk.clone(),
+        augmentation: match a.augment.as_str() {
+            "authors" => Some(Augmentation::default()),
+            "colour" => Some(Augmentation { crop: [0.0; 2], shift: [0.0; 2], ..Augmentation::default() }),
+            _ => None,
+        },
     };
     let r = oneshot_lab::eval::localise::localise(&a.agents, &config, parse_device(&a.device)?)?;
     let cm = |e: [f64; 2]| format!("{:5.2} / {:5.2}", 100.0 * e[0], 100.0 * e[1]);

@@ -5,15 +5,17 @@
 //! position of the trajectory's task, told the task (finding *the demonstrated* object, what a policy must do),
 //! and the positions of all four objects, told nothing (finding objects at all). It measures the data and the
 //! trunk, not the policy: a frame size at which this fails cannot support a policy that succeeds.
-use crate::data::augment::AugmentDraw;
+use crate::data::augment::{AugmentDraw, Augmentation};
 use crate::data::manifest::Manifest;
 use crate::data::trajectory::Trajectory;
 use crate::model::heads::spatial_softmax;
 use crate::model::resnet::ResNet18;
 use crate::sim::task::NUM_TASKS;
 use anyhow::{Result, bail};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use tch::nn::{self, Module, ModuleT, OptimizerConfig};
 use tch::{Device, Kind, Tensor};
 
@@ -41,6 +43,10 @@ pub struct LocaliseConfig {
     pub report_every: u64,
     pub seed: u64,
     pub target: LocaliseTarget,
+    /// Training frames are augmented with these ranges (the policy's `train.augmentation`), or not at all.
+    pub augmentation: Option<Augmentation>,
+    /// Where to write the trained trunk's weights (torchvision names, as `model.pretrained_backbone` reads them).
+    pub trunk_out: Option<PathBuf>,
 }
 
 /// Mean absolute errors of the target positions (x, y, in metres, averaged over objects) at one step.
@@ -63,10 +69,11 @@ pub struct LocaliseReport {
     pub curve: Vec<LocaliseErrors>,
 }
 
-/// First frames (normalised, `[N, 3, H, W]`), task one-hots `[N, 16]` and targets `[N, 2k]` (x, y of k points)
-/// of a collection.
+/// First frames (normalised, `[N, 3, H, W]`, and as stored RGB bytes for augmentation), task one-hots `[N, 16]`
+/// and targets `[N, 2k]` (x, y of k points) of a collection.
 struct FirstFrames {
     frames: Tensor,
+    rgb: Vec<Vec<u8>>,
     tasks: Tensor,
     targets: Tensor,
 }
@@ -85,14 +92,14 @@ fn first_frames(
     pick: impl Fn(usize) -> bool,
 ) -> Result<(FirstFrames, usize, usize)> {
     let manifest = Manifest::load(dir)?;
-    let (mut frames, mut tasks, mut targets, mut size) = (vec![], vec![], vec![], (0, 0));
+    let (mut frames, mut rgb, mut tasks, mut targets, mut size) = (vec![], vec![], vec![], vec![], (0, 0));
     for (_, entry) in manifest.trajectories.iter().enumerate().filter(|(i, _)| pick(*i)) {
         let t = Trajectory::from_bytes(&entry.read_verified(dir)?)?;
         let (h, w) = (t.meta.height, t.meta.width);
         size = (h, w);
-        let mut out = vec![0f32; 3 * h * w];
-        AugmentDraw::identity(h, w).apply(&t.frame_rgb(0)?, h, w, &mut out);
-        frames.push(Tensor::from_slice(&out).view([3, h as i64, w as i64]));
+        let first = t.frame_rgb(0)?;
+        frames.push(normalised(&first, AugmentDraw::identity(h, w), h, w));
+        rgb.push(first);
         let mut onehot = [0f32; NUM_TASKS];
         onehot[t.meta.task] = 1.0;
         tasks.push(Tensor::from_slice(&onehot));
@@ -103,10 +110,18 @@ fn first_frames(
     }
     let set = FirstFrames {
         frames: Tensor::stack(&frames, 0),
+        rgb,
         tasks: Tensor::stack(&tasks, 0),
         targets: Tensor::stack(&targets, 0),
     };
     Ok((set, size.0, size.1))
+}
+
+/// `rgb` under `draw`, normalised, as a `[3, H, W]` tensor.
+fn normalised(rgb: &[u8], draw: AugmentDraw, h: usize, w: usize) -> Tensor {
+    let mut out = vec![0f32; 3 * h * w];
+    draw.apply(rgb, h, w, &mut out);
+    Tensor::from_slice(&out).view([3, h as i64, w as i64])
 }
 
 /// Mean absolute x and y errors over frames and points of predictions `[N, 2k]`.
@@ -154,6 +169,7 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         errors(&pred, &set.targets.narrow(0, 0, n))
     };
     let mut opt = nn::Adam::default().build(&vs, config.lr)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(crate::seeds::derive_seed("localise-augment", &[config.seed]));
     let n = train.frames.size()[0];
     let mut curve = vec![];
     for step in 0..=config.steps {
@@ -164,10 +180,30 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
             break;
         }
         let idx = Tensor::randint(n, [config.batch], (Kind::Int64, Device::Cpu));
-        let pred = forward(&train.frames.index_select(0, &idx), &train.tasks.index_select(0, &idx), true);
+        let frames = match &config.augmentation {
+            None => train.frames.index_select(0, &idx),
+            Some(ranges) => {
+                let picked: Vec<Tensor> = Vec::<i64>::try_from(&idx)?
+                    .into_iter()
+                    .map(|i| {
+                        normalised(
+                            &train.rgb[i as usize],
+                            AugmentDraw::sample(&mut rng, ranges, height, width),
+                            height,
+                            width,
+                        )
+                    })
+                    .collect();
+                Tensor::stack(&picked, 0)
+            }
+        };
+        let pred = forward(&frames, &train.tasks.index_select(0, &idx), true);
         let target = train.targets.index_select(0, &idx);
         let loss = ((pred - target) / &scale).square().mean(Kind::Float);
         opt.backward_step(&loss);
+    }
+    if let Some(path) = &config.trunk_out {
+        save_trunk(&vs, path)?;
     }
     Ok(LocaliseReport {
         train_frames: n as usize,
@@ -177,4 +213,14 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         mean_baseline,
         curve,
     })
+}
+
+/// Writes the `backbone.*` variables of `vs` to `path` under their torchvision names (the prefix dropped).
+fn save_trunk(vs: &nn::VarStore, path: &Path) -> Result<()> {
+    let named: Vec<(String, Tensor)> = vs
+        .variables()
+        .into_iter()
+        .filter_map(|(name, t)| name.strip_prefix("backbone.").map(|n| (n.to_string(), t.to_device(Device::Cpu))))
+        .collect();
+    crate::fsio::write_with(path, |tmp| Ok(Tensor::write_safetensors(&named, tmp)?))
 }
