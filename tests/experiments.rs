@@ -47,3 +47,33 @@ fn the_ablations_grid_collects_once_per_robot() {
     assert_eq!(e.grid.sizes, [480, 800, 1600]);
     assert_eq!(collection_totals(&plan(&e)), (2, 2 * 1600), "the 480 and 800 sets are slots of the 1600 collection");
 }
+
+#[test]
+fn a_pretrained_trunk_file_keys_training_by_its_content_and_must_exist() {
+    use oneshot_lab::pipeline::stages::plan;
+    let dir = std::env::temp_dir().join(format!("oneshot-pretrained-key-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (weights, file) = (dir.join("trunk.safetensors"), dir.join("exp.toml"));
+    let text = format!(
+        "[world]\nimage = {{ height = 32, width = 40 }}\n[model]\npretrained_backbone = {:?}\n[grid]\nsizes = [16]\n",
+        weights.to_string_lossy()
+    );
+    std::fs::write(&file, text).unwrap();
+    let err = format!("{:#}", Experiment::load(&file, None).unwrap_err());
+    assert!(err.contains("model.pretrained_backbone") && err.contains("no such file"), "{err}");
+
+    let train_and_eval = |bytes: &[u8]| {
+        std::fs::write(&weights, bytes).unwrap();
+        let p = plan(&Experiment::load(&file, None).unwrap());
+        let cell = &p.cells[0];
+        (cell.train.clone().unwrap(), cell.eval.clone(), cell.collect_agent.clone().unwrap())
+    };
+    let first = train_and_eval(b"one");
+    let same = train_and_eval(b"one");
+    let changed = train_and_eval(b"two");
+    assert_eq!(first, same, "the same file content, the same keys");
+    assert_ne!(first.0, changed.0, "new weights retrain");
+    assert_ne!(first.1, changed.1, "and re-evaluate");
+    assert_eq!(first.2, changed.2, "collections do not depend on them");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -293,6 +293,9 @@ fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<Ce
         bail!("{file}: in {what}: eval.tasks contains task {t}, which collect.tasks does not collect");
     }
     check(config.eval.check_policy(&config.model, &config.world))?;
+    if let Some(path) = config.model.pretrained_backbone.as_ref().filter(|p| !Path::new(p).is_file()) {
+        bail!("{file}: in {what}: model.pretrained_backbone = {path:?}: no such file");
+    }
     let t = &config.train;
     for &step in &config.eval.checkpoints {
         if step == 0 || step >= t.steps || (step % t.checkpoint_interval != 0) {

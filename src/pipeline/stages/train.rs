@@ -42,6 +42,10 @@ pub fn add(plan: &mut Plan, cell: &CellConfig, demos: &str, agents: &str, per_ta
     if let Some(n) = per_task {
         inputs["per_task"] = n.into();
     }
+    // The weights file is an input by its content, not its name: replacing it retrains.
+    if let Some(path) = &cell.model.pretrained_backbone {
+        inputs["pretrained_backbone_blake3"] = file_digest(Path::new(path)).into();
+    }
     let job = TrainJob {
         model: cell.model.clone(),
         train: cell.train.clone(),
@@ -50,6 +54,12 @@ pub fn add(plan: &mut Plan, cell: &CellConfig, demos: &str, agents: &str, per_ta
         per_task,
     };
     plan.add(inputs, vec![demos.into(), agents.into()], super::Job::Train(job))
+}
+
+/// The blake3 digest of a file's bytes in hex (`unreadable` when it cannot be read: configuration checks refuse a
+/// missing file before planning).
+fn file_digest(path: &Path) -> String {
+    std::fs::read(path).map_or_else(|_| "unreadable".into(), |bytes| blake3::hash(&bytes).to_hex().to_string())
 }
 
 /// Trains into `staging`, resuming from the checkpoints an interrupted attempt left there.
