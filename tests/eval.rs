@@ -137,7 +137,7 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         trunk_out: None,
         augmentation: None,
     };
-    let trunk_file = dir.join("trunk.safetensors");
+    let trunk_file = dir.join("trunks").join("trunk.safetensors");
     let mut last_train = vec![];
     let jitter = oneshot_lab::data::augment::Augmentation::default();
     for (target, augmentation) in

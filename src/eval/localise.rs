@@ -11,7 +11,7 @@ use crate::data::trajectory::Trajectory;
 use crate::model::heads::spatial_softmax;
 use crate::model::resnet::ResNet18;
 use crate::sim::task::NUM_TASKS;
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -222,5 +222,8 @@ fn save_trunk(vs: &nn::VarStore, path: &Path) -> Result<()> {
         .into_iter()
         .filter_map(|(name, t)| name.strip_prefix("backbone.").map(|n| (n.to_string(), t.to_device(Device::Cpu))))
         .collect();
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    }
     crate::fsio::write_with(path, |tmp| Ok(Tensor::write_safetensors(&named, tmp)?))
 }
