@@ -77,3 +77,12 @@ fn a_pretrained_trunk_file_keys_training_by_its_content_and_must_exist() {
     assert_eq!(first.2, changed.2, "collections do not depend on them");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn every_shipped_train_config_loads() {
+    let files: Vec<_> = std::fs::read_dir("experiments/train").unwrap().map(|e| e.unwrap().path()).collect();
+    assert!(files.len() >= 2, "{files:?}");
+    for file in files {
+        oneshot_lab::config::CellConfig::load(&file).unwrap_or_else(|err| panic!("{}: {err:#}", file.display()));
+    }
+}
