@@ -154,6 +154,7 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
     use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
     use oneshot_lab::data::throughput::measure;
     use oneshot_lab::model::config::ModelConfig;
+    use oneshot_lab::train::config::TrainConfig;
     use tch::Device;
     let dir = scratch("loader");
     for robot in [Robot::Sawyer, Robot::Panda] {
@@ -165,7 +166,8 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
     assert!(held.frames_in_memory() && !on_use.frames_in_memory());
     let (model, aug) = (ModelConfig::default(), Augmentation::default());
     let batch = |data: &PairDataset, at: AugmentAt| {
-        let b = build_batch(data, Split::Train, &model, 4, 7, 3, Windows::Training, Some(&aug), at).unwrap();
+        let b =
+            build_batch(data, Split::Train, &model, 4, 7, 3, TrainConfig::default().windows(), Some(&aug), at).unwrap();
         b.to_device(&model, data.height, data.width, Device::Cpu)
     };
     let (a, b) = (batch(&held, AugmentAt::Host), batch(&on_use, AugmentAt::Host));

@@ -86,3 +86,21 @@ fn every_shipped_train_config_loads() {
         oneshot_lab::config::CellConfig::load(&file).unwrap_or_else(|err| panic!("{}: {err:#}", file.display()));
     }
 }
+
+#[test]
+fn window_start_is_checked_and_the_authors_value_leaves_keys_unchanged() {
+    use oneshot_lab::config::CellConfig;
+    let dir = std::env::temp_dir().join(format!("oneshot-window-start-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let load = |text: &str| {
+        let file = dir.join("train.toml");
+        std::fs::write(&file, text).unwrap();
+        CellConfig::load(&file)
+    };
+    let err = format!("{:#}", load("[train]\nwindow_start = 0.9\n").unwrap_err());
+    assert!(err.contains("train.window_start") && err.contains("0.9"), "{err}");
+    let json = |c: CellConfig| serde_json::to_string(&c.train).unwrap();
+    assert!(!json(load("[train]\nwindow_start = 0.2\n").unwrap()).contains("window_start"), "the authors' value");
+    assert!(json(load("[train]\nwindow_start = 0.5\n").unwrap()).contains("\"window_start\":0.5"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -58,7 +58,7 @@ pub fn probe(a: ProbeArgs) -> Result<()> {
     let trained = load_trained(&a.policy, a.checkpoint, parse_device(&a.device)?)?;
     let data = PairDataset::open(&a.demos, &a.agents, trained.summary.train.val_fraction, None)?;
     let split = if a.train_split { Split::Train } else { Split::Val };
-    let placement = if a.from_start { Windows::FromStart } else { Windows::Training };
+    let placement = if a.from_start { Windows::FromStart } else { trained.summary.train.windows() };
     print_probe(&open_loop(&trained, &data, split, placement, a.windows, 16, a.seed)?);
     Ok(())
 }

@@ -178,6 +178,8 @@ pub struct PrefetchSpec {
     pub batch_size: usize,
     pub seed: u64,
     pub start: u64,
+    /// Where windows are drawn in their trajectories.
+    pub windows: Windows,
     /// Augmentation ranges of training samples; none: no augmentation.
     pub augment: Option<Augmentation>,
     /// Ready batches kept queued; 0 builds each batch when it is asked for.
@@ -203,7 +205,7 @@ impl Prefetcher {
                     spec.batch_size,
                     spec.seed,
                     step,
-                    Windows::Training,
+                    spec.windows,
                     spec.augment.as_ref(),
                     spec.augment_at,
                 );
@@ -227,7 +229,7 @@ impl Prefetcher {
                     spec.batch_size,
                     spec.seed,
                     *next - 1,
-                    Windows::Training,
+                    spec.windows,
                     spec.augment.as_ref(),
                     spec.augment_at,
                 )

@@ -3,7 +3,7 @@
 //! step's demand, batch size x steps per second.
 use super::augment::Augmentation;
 use super::loader::{AugmentAt, build_batch};
-use super::pairs::{PairDataset, Split, Windows};
+use super::pairs::{PairDataset, Split};
 use crate::model::config::ModelConfig;
 use anyhow::{Result, bail};
 use std::time::Instant;
@@ -52,11 +52,12 @@ pub fn measure(
     }
     data.check_fits(model)?;
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let authors_windows = crate::train::config::TrainConfig::default().windows();
     let (mut build_seconds, mut copy_seconds) = (0.0, 0.0);
     for step in 0..=batches as u64 {
         let start = Instant::now();
-        let batch = pool
-            .install(|| build_batch(data, Split::Train, model, batch_size, 0, step, Windows::Training, augment, at))?;
+        let batch =
+            pool.install(|| build_batch(data, Split::Train, model, batch_size, 0, step, authors_windows, augment, at))?;
         let built = Instant::now();
         let on_device = batch.to_device(model, data.height, data.width, device);
         if let Device::Cuda(i) = device {

@@ -1,5 +1,6 @@
 //! Training settings, with the paper's values as defaults.
 use crate::data::augment::Augmentation;
+use crate::data::pairs::{AUTHORS_WINDOW_END, Windows};
 use crate::model::config::ModelConfig;
 use crate::model::policy::Losses;
 use anyhow::{Result, bail};
@@ -21,6 +22,20 @@ pub struct LossWeights {
 
 fn is_one(w: &f64) -> bool {
     *w == 1.0
+}
+
+/// The authors' probability that a training window starts at its trajectory's first frame.
+pub const AUTHORS_WINDOW_START: f64 = 0.2;
+
+fn is_authors_window_start(p: &f64) -> bool {
+    *p == AUTHORS_WINDOW_START
+}
+
+impl TrainConfig {
+    /// Where training windows are drawn.
+    pub fn windows(&self) -> Windows {
+        Windows::Training { start: self.window_start }
+    }
 }
 
 impl LossWeights {
@@ -135,6 +150,10 @@ pub struct TrainConfig {
     /// Its ranges.
     pub augmentation: Augmentation,
     pub loss: LossWeights,
+    /// Probability that a training window starts at its trajectory's first frame, where only the picture says
+    /// where the object is (the authors' 0.2; each window also ends the trajectory with probability 0.2).
+    #[serde(skip_serializing_if = "is_authors_window_start")]
+    pub window_start: f64,
     /// Batches prepared ahead of the training step on a background thread; 0 prepares each when it is needed
     /// (faster where the cores are few: the two do not compete).
     pub prefetch: usize,
@@ -160,6 +179,7 @@ impl Default for TrainConfig {
             augment: true,
             augmentation: Augmentation::default(),
             loss: LossWeights::default(),
+            window_start: AUTHORS_WINDOW_START,
             prefetch: 4,
         }
     }
@@ -191,6 +211,14 @@ impl TrainConfig {
         }
         if w.bc + w.inverse + w.point + w.pose == 0.0 {
             bail!("train.loss: every loss weight is 0");
+        }
+        if !(0.0..=1.0 - AUTHORS_WINDOW_END).contains(&self.window_start) {
+            bail!(
+                "train.window_start = {} out of range [0, {}] (windows also end their trajectory with probability {})",
+                self.window_start,
+                1.0 - AUTHORS_WINDOW_END,
+                AUTHORS_WINDOW_END
+            );
         }
         self.augmentation.validate()?;
         crate::device::check_device_name(&self.device)?;

@@ -6,7 +6,7 @@ pub mod config;
 pub mod curve;
 
 use crate::data::loader::{AugmentAt, Batch, DeviceBatch, PrefetchSpec, Prefetcher, build_batch};
-use crate::data::pairs::{PairDataset, Split, Windows};
+use crate::data::pairs::{PairDataset, Split};
 use crate::model::config::ModelConfig;
 use crate::model::policy::{Losses, Policy};
 use crate::seeds::derive_seed;
@@ -169,18 +169,8 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     };
     let val: Vec<DeviceBatch> = (0..config.val_batches)
         .map(|k| {
-            build_batch(
-                &data,
-                Split::Val,
-                model,
-                config.batch_size,
-                config.seed,
-                k,
-                Windows::Training,
-                None,
-                augment_at,
-            )
-            .map(|b| b.to_device(model, h, w, device))
+            build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, config.windows(), None, augment_at)
+                .map(|b| b.to_device(model, h, w, device))
         })
         .collect::<Result<_>>()?;
 
@@ -194,6 +184,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         batch_size: config.batch_size,
         seed: config.seed,
         start,
+        windows: config.windows(),
         augment: config.augment.then(|| config.augmentation.clone()),
         depth: config.prefetch,
         augment_at,
