@@ -62,6 +62,11 @@ fn a_pretrained_trunk_file_keys_training_by_its_content_and_must_exist() {
     let err = format!("{:#}", Experiment::load(&file, None).unwrap_err());
     assert!(err.contains("model.pretrained_backbone") && err.contains("no such file"), "{err}");
 
+    let frozen = dir.join("frozen.toml");
+    std::fs::write(&frozen, "[model]\nfreeze_backbone = true\n[grid]\nsizes = [16]\n").unwrap();
+    let err = format!("{:#}", Experiment::load(&frozen, None).unwrap_err());
+    assert!(err.contains("frozen.toml") && err.contains("model.freeze_backbone"), "{err}");
+
     let train_and_eval = |bytes: &[u8]| {
         std::fs::write(&weights, bytes).unwrap();
         let p = plan(&Experiment::load(&file, None).unwrap());

@@ -79,6 +79,29 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
         assert!(t.equal(&b[name]), "{name} differs after resuming");
     }
 
+    // A trunk frozen with `model.freeze_backbone` keeps its pretrained weights (batch-norm statistics may follow
+    // the data); the same start without freezing moves them. Freezing needs weights to freeze.
+    let trunk_file = dir.join("trunk.safetensors");
+    let trunk: Vec<(String, tch::Tensor)> =
+        a.iter().filter_map(|(n, t)| n.strip_prefix("backbone.").map(|n| (n.to_string(), t.shallow_clone()))).collect();
+    tch::Tensor::write_safetensors(&trunk, &trunk_file).unwrap();
+    let pretrained = ModelConfig { pretrained_backbone: Some(trunk_file.to_string_lossy().into()), ..model.clone() };
+    let short = TrainConfig { steps: 20, val_interval: 20, checkpoint_interval: 20, ..config.clone() };
+    let moved = |freeze_backbone: bool| {
+        let name = if freeze_backbone { "frozen" } else { "unfrozen" };
+        let m = ModelConfig { freeze_backbone, ..pretrained.clone() };
+        train(&m, &short, &TrainRun { out: &dir.join(name), ..run }).unwrap();
+        let after: std::collections::HashMap<String, tch::Tensor> =
+            tch::Tensor::read_safetensors(dir.join(name).join("model.safetensors")).unwrap().into_iter().collect();
+        let weights = trunk.iter().filter(|(n, _)| !n.contains("running_") && !n.contains("num_batches"));
+        weights.filter(|(n, t)| !t.equal(&after[&format!("backbone.{n}")])).count()
+    };
+    assert_eq!(moved(true), 0, "a frozen trunk's weights changed");
+    assert!(moved(false) > 0, "fine-tuning left the trunk untouched");
+    let unfrozen = ModelConfig { freeze_backbone: true, ..model.clone() };
+    let err = train(&unfrozen, &short, &TrainRun { out: &dir.join("no_weights"), ..run }).unwrap_err();
+    assert!(err.to_string().contains("model.freeze_backbone"), "{err}");
+
     // Every other registered architecture learns from the same data with its own losses.
     for registration in ARCHITECTURES.iter().filter(|r| r.name != model.architecture.0) {
         let other = ModelConfig { architecture: Architecture::named(registration.name), ..model.clone() };

@@ -296,6 +296,9 @@ fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<Ce
     if let Some(path) = config.model.pretrained_backbone.as_ref().filter(|p| !Path::new(p).is_file()) {
         bail!("{file}: in {what}: model.pretrained_backbone = {path:?}: no such file");
     }
+    if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() {
+        bail!("{file}: in {what}: model.freeze_backbone = true needs model.pretrained_backbone");
+    }
     let t = &config.train;
     for &step in &config.eval.checkpoints {
         if step == 0 || step >= t.steps || (step % t.checkpoint_interval != 0) {

@@ -53,6 +53,10 @@ pub struct ModelConfig {
     /// Optional safetensors file of torchvision ResNet-18 weights (names like `layer1.0.conv1.weight`; for DAML,
     /// VGG-16's `features.0.*` and `features.2.*`).
     pub pretrained_backbone: Option<String>,
+    /// Keeps the pretrained trunk's weights fixed during training (its BatchNorm statistics still follow the
+    /// data). A departure: the authors fine-tune the whole network (false).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub freeze_backbone: bool,
     /// Attention layers over context + agent frames.
     pub attention_layers: usize,
     /// Inner width of the query/key/value projections.
@@ -96,6 +100,7 @@ impl Default for ModelConfig {
             backbone_width: 64,
             backbone_stages: 4,
             pretrained_backbone: None,
+            freeze_backbone: false,
             attention_layers: 2,
             attention_inner: 128,
             attention_heads: 4,

@@ -70,6 +70,11 @@ pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::Var
     if let Some(path) = &model.pretrained_backbone {
         checkpoint::load_backbone(&mut vs, Path::new(path)).context("model.pretrained_backbone")?;
     }
+    if model.freeze_backbone {
+        for (_, var) in vs.variables().into_iter().filter(|(name, _)| name.starts_with("backbone.")) {
+            let _ = var.set_requires_grad(false);
+        }
+    }
     Ok((vs, policy))
 }
 
@@ -140,6 +145,9 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     config.validate()?;
     config::check_heads(model, config)?;
     config::check_precision(model, config)?;
+    if model.freeze_backbone && model.pretrained_backbone.is_none() {
+        bail!("model.freeze_backbone = true needs model.pretrained_backbone (a frozen random trunk learns nothing)");
+    }
     let device = config.device()?;
     crate::device::autotune_convolutions(device);
     let data = Arc::new(PairDataset::open(run.demo_dir, run.agent_dir, config.val_fraction, run.per_task)?);
