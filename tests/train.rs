@@ -98,8 +98,8 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     };
     assert_eq!(moved(true), 0, "a frozen trunk's weights changed");
     assert!(moved(false) > 0, "fine-tuning left the trunk untouched");
-    let unfrozen = ModelConfig { freeze_backbone: true, ..model.clone() };
-    let err = train(&unfrozen, &short, &TrainRun { out: &dir.join("no_weights"), ..run }).unwrap_err();
+    let no_weights = ModelConfig { freeze_backbone: true, ..model.clone() };
+    let err = train(&no_weights, &short, &TrainRun { out: &dir.join("no_weights"), ..run }).unwrap_err();
     assert!(err.to_string().contains("model.freeze_backbone"), "{err}");
 
     // Every other registered architecture learns from the same data with its own losses.
