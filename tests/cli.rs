@@ -83,3 +83,23 @@ fn an_unknown_architecture_to_benchmark_is_an_error_naming_it() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--architectures") && err.contains("transfomer"), "{err}");
 }
+
+#[test]
+fn a_train_config_with_a_pretrain_section_is_refused_naming_the_file() {
+    let dir = std::env::temp_dir().join(format!("oneshot-test-cli-pretrain-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("with_pretrain.toml");
+    std::fs::write(&config, "[pretrain]\nsteps = 10\n[model]\nbackbone_width = 8\n").unwrap();
+    let out = oneshot()
+        .args(["train", "--demos", "/nonexistent/d", "--agents", "/nonexistent/a", "--out"])
+        .arg(dir.join("out"))
+        .arg("--config")
+        .arg(&config)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("with_pretrain.toml") && err.contains("[pretrain] is a stage of experiment files"), "{err}");
+    assert!(!dir.join("out").exists(), "nothing is written");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

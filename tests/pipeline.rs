@@ -273,6 +273,68 @@ fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The tiny experiment with a `pretrained` variant whose trunk a pretrain stage of `pretrain_steps` trains; the
+/// trunk is frozen, so the trained policy's trunk weights must be the pretrained ones.
+fn pretrained_experiment(seeds: &str, pretrain_steps: u32) -> String {
+    experiment(seeds, 90, 4).replace(r#"variants = ["full", "no_point"]"#, r#"variants = ["full", "pretrained"]"#)
+        + &format!(
+            "[variants.pretrained]\npretrain = {{ steps = {pretrain_steps}, batch = 4 }}\nmodel.freeze_backbone = true\n"
+        )
+}
+
+#[test]
+fn a_pretrain_section_trains_the_trunk_once_per_seed_and_training_starts_from_it() {
+    let dir = scratch("pretrain");
+    let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
+    std::fs::write(&file, pretrained_experiment("[0]", 6)).unwrap();
+    // collect x2, pretrain, train x2, eval x2, random eval.
+    assert_eq!(executed(&run(&file, &store)), 8);
+    let conn = db(&store);
+    let (pretrain, artifact): (String, String) = conn
+        .query_row("SELECT key, artifact FROM stages WHERE kind = 'pretrain' AND status = 'done'", [], |r| {
+            Ok((r.get(0)?, r.get(1)?))
+        })
+        .unwrap();
+    let held_out: f64 = conn
+        .query_row(
+            "SELECT value FROM metrics WHERE stage_key = ?1 AND name = 'trunk_held_out_error_x'",
+            [&pretrain],
+            |r| r.get(0),
+        )
+        .unwrap();
+    assert!(held_out > 0.0 && held_out < 1.0, "a held-out error in metres: {held_out}");
+    let (train, upstream, train_artifact): (String, String, String) = conn
+        .query_row(
+            "SELECT s.key, s.upstream, s.artifact FROM stages s JOIN cells c ON c.train_key = s.key \
+             WHERE c.cell = 'n32-pretrained-s0'",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+        )
+        .unwrap();
+    assert!(upstream.contains(&pretrain), "the train stage {train} is downstream of the pretraining: {upstream}");
+    // The frozen trunk the policy trained with is, tensor for tensor, the pretrained one (convolutions and
+    // batch-norm scales; the running statistics follow the data).
+    let read = |p: PathBuf| -> std::collections::HashMap<String, tch::Tensor> {
+        tch::Tensor::read_safetensors(&p).unwrap().into_iter().collect()
+    };
+    let trunk = read(Path::new(&artifact).join("trunk.safetensors"));
+    let policy = read(Path::new(&train_artifact).join("model.safetensors"));
+    let learned: Vec<&String> = trunk.keys().filter(|n| n.ends_with("weight") || n.ends_with("bias")).collect();
+    assert!(learned.len() > 10 && learned.iter().any(|n| n.as_str() == "conv1.weight"), "{learned:?}");
+    for name in learned {
+        assert!(trunk[name].equal(&policy[&format!("backbone.{name}")]), "backbone.{name} is not the pretrained one");
+    }
+
+    // Another seed pretrains its own trunk; changing the pretraining re-runs that cell's pretrain, train and
+    // eval stages only.
+    std::fs::write(&file, pretrained_experiment("[0, 1]", 6)).unwrap();
+    assert_eq!(executed(&run(&file, &store)), 1 + 2 + 2);
+    std::fs::write(&file, pretrained_experiment("[0, 1]", 8)).unwrap();
+    assert_eq!(executed(&run(&file, &store)), 2 * 3);
+    assert_eq!(count(&db(&store), "SELECT COUNT(*) FROM stages WHERE kind = 'pretrain' AND status = 'done'"), 4);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn two_concurrent_runs_execute_each_stage_once() {
     let dir = scratch("concurrent");

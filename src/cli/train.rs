@@ -10,6 +10,13 @@ pub fn train(a: TrainArgs) -> Result<()> {
         Some(path) => CellConfig::load(path)?,
         None => CellConfig::default(),
     };
+    if c.pretrain.is_some() {
+        anyhow::bail!(
+            "{}: [pretrain] is a stage of experiment files (`run`); for `train`, make the trunk with `localise \
+             --save-trunk` and name it in model.pretrained_backbone",
+            a.config.as_ref().map_or_else(String::new, |p| p.display().to_string())
+        );
+    }
     c.train.steps = a.steps.unwrap_or(c.train.steps);
     c.train.batch_size = a.batch_size.unwrap_or(c.train.batch_size);
     c.train.device = a.device.unwrap_or(c.train.device);

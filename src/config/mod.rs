@@ -3,6 +3,7 @@
 //!
 //! Resolution order (later wins): included file, this file, the chosen profile, then a cell's variant.
 use crate::eval::EvalConfig;
+use crate::eval::localise::PretrainConfig;
 use crate::model::config::ModelConfig;
 use crate::sim::env::WorldConfig;
 use crate::train::config::TrainConfig;
@@ -74,6 +75,9 @@ pub struct CellConfig {
     pub world: WorldConfig,
     pub collect: CollectSettings,
     pub model: ModelConfig,
+    /// A stage that trains the image trunk before the policy (absent: the authors' start).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pretrain: Option<PretrainConfig>,
     pub train: TrainConfig,
     pub eval: EvalConfig,
 }
@@ -88,6 +92,7 @@ struct FileShape {
     world: Option<toml::Table>,
     collect: Option<toml::Table>,
     model: Option<toml::Table>,
+    pretrain: Option<toml::Table>,
     train: Option<toml::Table>,
     eval: Option<toml::Table>,
     #[serde(default)]
@@ -106,6 +111,7 @@ impl FileShape {
             ("world", &self.world),
             ("collect", &self.collect),
             ("model", &self.model),
+            ("pretrain", &self.pretrain),
             ("train", &self.train),
             ("eval", &self.eval),
         ];
@@ -296,8 +302,17 @@ fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<Ce
     if let Some(path) = config.model.pretrained_backbone.as_ref().filter(|p| !Path::new(p).is_file()) {
         bail!("{file}: in {what}: model.pretrained_backbone = {path:?}: no such file");
     }
-    if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() {
-        bail!("{file}: in {what}: model.freeze_backbone = true needs model.pretrained_backbone");
+    if config.pretrain.is_some() {
+        if config.model.pretrained_backbone.is_some() {
+            bail!(
+                "{file}: in {what}: [pretrain] and model.pretrained_backbone both give the trunk's starting weights; \
+                 keep one"
+            );
+        }
+        check(crate::train::check_pretrained_trunk(&config.model).context("[pretrain]"))?;
+    }
+    if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() && config.pretrain.is_none() {
+        bail!("{file}: in {what}: model.freeze_backbone = true needs model.pretrained_backbone or [pretrain]");
     }
     let t = &config.train;
     for &step in &config.eval.checkpoints {
@@ -332,6 +347,9 @@ impl CellConfig {
         self.world.validate()?;
         self.collect.validate()?;
         self.model.validate()?;
+        if let Some(p) = &self.pretrain {
+            p.validate()?;
+        }
         self.train.validate()?;
         self.eval.validate()?;
         crate::train::config::check_heads(&self.model, &self.train)?;
@@ -379,6 +397,7 @@ fn validate_grid(grid: &Grid, variants: &BTreeMap<String, toml::Table>, file: &s
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::eval::localise::LocaliseTarget;
 
     fn load(text: &str) -> Result<Experiment> {
         let dir = std::env::temp_dir().join(format!(
@@ -401,6 +420,26 @@ mod tests {
         assert_eq!(e.cells.iter().map(|c| c.config.train.seed).collect::<Vec<_>>(), [4, 7]);
         let own = load("[collect]\ntasks = [0, 5]\n[eval]\ntasks = [5]\n[grid]\nsizes = [32]\n").unwrap();
         assert_eq!(own.cells[0].config.eval.tasks, [5]);
+    }
+
+    #[test]
+    fn a_pretrain_section_must_be_the_only_start_of_a_resnet_trunk() {
+        let grid = "[grid]\nsizes = [16]\n";
+        let e = load(&format!("[pretrain]\nsteps = 50\n{grid}")).unwrap();
+        let p = e.cells[0].config.pretrain.as_ref().unwrap();
+        assert_eq!((p.steps, p.target, p.augmentation.as_ref()), (50, LocaliseTarget::Objects, None));
+        assert_eq!(load(grid).unwrap().cells[0].config.pretrain, None, "absent: the authors' start");
+        let err = |text: &str| format!("{:#}", load(text).unwrap_err());
+        let both = err(&format!("[pretrain]\n[model]\npretrained_backbone = \"Cargo.toml\"\n{grid}"));
+        assert!(both.contains("[pretrain] and model.pretrained_backbone"), "{both}");
+        let vgg = err(&format!(
+            "[pretrain]\n[model]\narchitecture = \"daml\"\n[train.loss]\ninverse = 0.0\npoint = 0.0\n{grid}"
+        ));
+        assert!(vgg.contains("[pretrain]") && vgg.contains("no ResNet-18 trunk"), "{vgg}");
+        let zero = err(&format!("[pretrain]\nsteps = 0\n{grid}"));
+        assert!(zero.contains("pretrain.steps"), "{zero}");
+        let frozen = err(&format!("[model]\nfreeze_backbone = true\n{grid}"));
+        assert!(frozen.contains("needs model.pretrained_backbone or [pretrain]"), "{frozen}");
     }
 
     #[test]

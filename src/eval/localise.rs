@@ -49,6 +49,65 @@ pub struct LocaliseConfig {
     pub trunk_out: Option<PathBuf>,
 }
 
+/// The `[pretrain]` section of an experiment: a stage that trains the policy's image trunk on this check's
+/// regression over the agent collection's first frames, then starts the policy from it in place of
+/// `model.pretrained_backbone`. A departure: the authors start from ImageNet weights (the section absent).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PretrainConfig {
+    pub target: LocaliseTarget,
+    pub steps: u64,
+    pub batch: i64,
+    pub lr: f64,
+    /// Training frames are augmented with these ranges; absent, not at all.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub augmentation: Option<Augmentation>,
+}
+
+impl Default for PretrainConfig {
+    /// The settings of `localise --target objects --steps 2000` (the trunk of the README's learning recipe).
+    fn default() -> Self {
+        PretrainConfig { target: LocaliseTarget::Objects, steps: 2000, batch: 32, lr: 1e-3, augmentation: None }
+    }
+}
+
+impl PretrainConfig {
+    /// Checks ranges; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        if self.steps == 0 || self.batch < 1 || !(self.lr.is_finite() && self.lr > 0.0) {
+            bail!("pretrain.steps and pretrain.batch must be at least 1 and pretrain.lr positive: {self:?}");
+        }
+        if let Some(a) = &self.augmentation {
+            a.validate().context("pretrain.augmentation")?;
+        }
+        Ok(())
+    }
+
+    /// The check's settings for a trunk of `backbone_width` and `backbone_stages`, seeded by `seed`, saved to
+    /// `trunk_out` (a fifth of the layouts held out, errors measured ten times).
+    pub fn localise(
+        &self,
+        backbone_width: i64,
+        backbone_stages: usize,
+        seed: u64,
+        trunk_out: PathBuf,
+    ) -> LocaliseConfig {
+        LocaliseConfig {
+            backbone_width,
+            backbone_stages,
+            steps: self.steps,
+            batch: self.batch,
+            lr: self.lr,
+            hold_out_every: 5,
+            report_every: (self.steps / 10).max(1),
+            seed,
+            target: self.target,
+            augmentation: self.augmentation.clone(),
+            trunk_out: Some(trunk_out),
+        }
+    }
+}
+
 /// Mean absolute errors of the target positions (x, y, in metres, averaged over objects) at one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LocaliseErrors {

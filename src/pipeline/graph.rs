@@ -34,6 +34,8 @@ pub struct PlannedCell {
     pub seed: Option<u64>,
     pub collect_demo: Option<String>,
     pub collect_agent: Option<String>,
+    /// The trunk's pretraining, where the cell has a `[pretrain]` section.
+    pub pretrain: Option<String>,
     pub train: Option<String>,
     pub eval: String,
     /// Evaluations of intermediate checkpoints: (training step, eval stage key).
@@ -78,7 +80,12 @@ impl Plan {
     pub fn labels(&self) -> BTreeMap<String, Vec<String>> {
         let mut out: BTreeMap<String, Vec<String>> = BTreeMap::new();
         for c in &self.cells {
-            let keys = [(&c.collect_demo, "collect"), (&c.collect_agent, "collect"), (&c.train, "train")];
+            let keys = [
+                (&c.collect_demo, "collect"),
+                (&c.collect_agent, "collect"),
+                (&c.pretrain, "pretrain"),
+                (&c.train, "train"),
+            ];
             for (k, kind) in keys {
                 if let Some(k) = k {
                     out.entry(k.clone()).or_default().push(format!("{}/{kind}", c.name));

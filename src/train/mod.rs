@@ -78,6 +78,27 @@ pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::Var
     Ok((vs, policy))
 }
 
+/// Checks that `model`'s network has the trunk a pretrain stage trains (a ResNet-18 of `model.backbone_width`
+/// and `model.backbone_stages` under `backbone.`), so that every pretrained tensor finds its place.
+pub fn check_pretrained_trunk(model: &ModelConfig) -> Result<()> {
+    model.validate()?;
+    let (policy_vars, _) = build_policy(model, tch::Device::Cpu)?;
+    let trunk_vars = nn::VarStore::new(tch::Device::Cpu);
+    crate::model::resnet::ResNet18::new(&(trunk_vars.root() / "backbone"), model.backbone_width, model.backbone_stages);
+    let policy = policy_vars.variables();
+    for (name, t) in trunk_vars.variables() {
+        if policy.get(&name).map(|p| p.size()) != Some(t.size()) {
+            bail!(
+                "model.architecture = {:?} has no ResNet-18 trunk of width {} with {} stages to start from (`{name}`)",
+                model.architecture.0,
+                model.backbone_width,
+                model.backbone_stages
+            );
+        }
+    }
+    Ok(())
+}
+
 /// A trained policy ready for inference.
 pub struct TrainedPolicy {
     pub vars: nn::VarStore,

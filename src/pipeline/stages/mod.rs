@@ -4,6 +4,7 @@
 //! into stages.
 pub mod collect;
 pub mod eval;
+pub mod pretrain;
 pub mod train;
 
 use super::graph::{Plan, PlannedCell};
@@ -21,18 +22,20 @@ use std::path::{Path, PathBuf};
 #[serde(rename_all = "lowercase")]
 pub enum Kind {
     Collect,
+    Pretrain,
     Train,
     Eval,
 }
 
 impl Kind {
     /// Every kind, in pipeline order.
-    pub const ALL: [Kind; 3] = [Kind::Collect, Kind::Train, Kind::Eval];
+    pub const ALL: [Kind; 4] = [Kind::Collect, Kind::Pretrain, Kind::Train, Kind::Eval];
 
     /// Lower-case name.
     pub fn name(self) -> &'static str {
         match self {
             Kind::Collect => "collect",
+            Kind::Pretrain => "pretrain",
             Kind::Train => "train",
             Kind::Eval => "eval",
         }
@@ -47,6 +50,7 @@ impl Kind {
     pub fn version(self) -> u32 {
         match self {
             Kind::Collect => collect::VERSION,
+            Kind::Pretrain => pretrain::VERSION,
             Kind::Train => train::VERSION,
             Kind::Eval => eval::VERSION,
         }
@@ -63,6 +67,7 @@ impl Kind {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Job {
     Collect(collect::CollectJob),
+    Pretrain(pretrain::PretrainJob),
     Train(train::TrainJob),
     Eval(eval::EvalJob),
 }
@@ -72,6 +77,7 @@ impl Job {
     pub fn kind(&self) -> Kind {
         match self {
             Job::Collect(_) => Kind::Collect,
+            Job::Pretrain(_) => Kind::Pretrain,
             Job::Train(_) => Kind::Train,
             Job::Eval(_) => Kind::Eval,
         }
@@ -81,7 +87,7 @@ impl Job {
     pub fn needs_gpu(&self) -> bool {
         match self {
             Job::Collect(_) => false,
-            Job::Train(_) => true,
+            Job::Pretrain(_) | Job::Train(_) => true,
             Job::Eval(e) => e.runs_network(),
         }
     }
@@ -98,6 +104,7 @@ impl Job {
     pub fn run(&self, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
         match self {
             Job::Collect(j) => collect::run(j, upstream, staging, ctx),
+            Job::Pretrain(j) => pretrain::run(j, upstream, staging, ctx),
             Job::Train(j) => train::run(j, upstream, staging, ctx),
             Job::Eval(j) => eval::run(j, upstream, staging, ctx),
         }
@@ -146,6 +153,12 @@ pub enum MetricName {
     Reached,
     Picked,
     Placed,
+    /// The pretrained trunk's mean absolute x and y errors on held-out layouts (metres).
+    TrunkHeldOutErrorX,
+    TrunkHeldOutErrorY,
+    /// Predicting the training layouts' mean there instead (metres).
+    TrunkMeanErrorX,
+    TrunkMeanErrorY,
 }
 
 impl MetricName {
@@ -162,6 +175,10 @@ impl MetricName {
             MetricName::Reached => "reached",
             MetricName::Picked => "picked",
             MetricName::Placed => "placed",
+            MetricName::TrunkHeldOutErrorX => "trunk_held_out_error_x",
+            MetricName::TrunkHeldOutErrorY => "trunk_held_out_error_y",
+            MetricName::TrunkMeanErrorX => "trunk_mean_error_x",
+            MetricName::TrunkMeanErrorY => "trunk_mean_error_y",
         }
     }
 }
@@ -187,8 +204,9 @@ pub fn collection_totals(plan: &Plan) -> (usize, usize) {
     (jobs.len(), jobs.iter().map(|c| c.per_task * c.settings.tasks.len()).sum())
 }
 
-/// Expands `experiment` into its stages and cells: per cell, a collection per robot, training, and an evaluation
-/// of the final weights and of each chosen checkpoint; then one evaluation per reference policy.
+/// Expands `experiment` into its stages and cells: per cell, a collection per robot, the trunk's pretraining
+/// where the cell asks for it, training, and an evaluation of the final weights and of each chosen checkpoint;
+/// then one evaluation per reference policy.
 pub fn plan(experiment: &Experiment) -> Plan {
     let mut plan = Plan::default();
     // With nested sizes, each collection (world and collection settings) is made once, at its largest size.
@@ -206,7 +224,8 @@ pub fn plan(experiment: &Experiment) -> Plan {
         let demos = collect::add(&mut plan, Robot::Sawyer, collected, c);
         let agents = collect::add(&mut plan, Robot::Panda, collected, c);
         let subset = (per_task < collected).then_some(per_task);
-        let train = train::add(&mut plan, c, &demos, &agents, subset);
+        let pretrain = pretrain::add(&mut plan, c, &agents);
+        let train = train::add(&mut plan, c, &demos, &agents, subset, pretrain.as_deref());
         let data = [demos.clone(), agents.clone()];
         let checkpoints =
             c.eval.checkpoints.iter().map(|&s| (s, eval::add_trained(&mut plan, c, &train, Some(s), &data))).collect();
@@ -219,6 +238,7 @@ pub fn plan(experiment: &Experiment) -> Plan {
             seed: Some(cell.seed),
             collect_demo: Some(demos),
             collect_agent: Some(agents),
+            pretrain,
             train: Some(train),
             eval,
             checkpoints,
@@ -234,6 +254,7 @@ pub fn plan(experiment: &Experiment) -> Plan {
             seed: None,
             collect_demo: None,
             collect_agent: None,
+            pretrain: None,
             train: None,
             eval,
             checkpoints: Vec::new(),

@@ -11,8 +11,8 @@ use std::path::Path;
 /// Implementation version of training (part of every train key).
 pub const VERSION: u32 = 3;
 
-/// What a train stage runs: the network and training settings, the keys of the two collections, and how many
-/// slots per task it uses of them (none: all).
+/// What a train stage runs: the network and training settings, the keys of the two collections, how many
+/// slots per task it uses of them (none: all), and the pretrain stage whose trunk it starts from (if any).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrainJob {
     pub model: ModelConfig,
@@ -20,6 +20,7 @@ pub struct TrainJob {
     pub demos: String,
     pub agents: String,
     pub per_task: Option<usize>,
+    pub trunk: Option<String>,
 }
 
 /// Training settings that do not change results (where it runs, how far ahead batches are made, the tensor
@@ -36,8 +37,16 @@ fn identity(t: &TrainConfig) -> TrainConfig {
 }
 
 /// Adds a cell's training on the collections `demos` and `agents` (their first `per_task` slots of each task, if
-/// given: then the key says so); returns its key.
-pub fn add(plan: &mut Plan, cell: &CellConfig, demos: &str, agents: &str, per_task: Option<usize>) -> String {
+/// given: then the key says so), starting from the trunk of pretrain stage `trunk` if given (an upstream of the
+/// key); returns its key.
+pub fn add(
+    plan: &mut Plan,
+    cell: &CellConfig,
+    demos: &str,
+    agents: &str,
+    per_task: Option<usize>,
+    trunk: Option<&str>,
+) -> String {
     let mut inputs = serde_json::json!({ "model": cell.model, "train": identity(&cell.train) });
     if let Some(n) = per_task {
         inputs["per_task"] = n.into();
@@ -52,8 +61,10 @@ pub fn add(plan: &mut Plan, cell: &CellConfig, demos: &str, agents: &str, per_ta
         demos: demos.into(),
         agents: agents.into(),
         per_task,
+        trunk: trunk.map(str::to_string),
     };
-    plan.add(inputs, vec![demos.into(), agents.into()], super::Job::Train(job))
+    let upstream = [demos, agents].into_iter().chain(trunk).map(str::to_string).collect();
+    plan.add(inputs, upstream, super::Job::Train(job))
 }
 
 /// The blake3 digest of a file's bytes in hex (`unreadable` when it cannot be read: configuration checks refuse a
@@ -65,6 +76,13 @@ fn file_digest(path: &Path) -> String {
 /// Trains into `staging`, resuming from the checkpoints an interrupted attempt left there.
 pub fn run(job: &TrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
     let config = TrainConfig { device: ctx.device_or(&job.train.device), ..job.train.clone() };
+    let model = match &job.trunk {
+        Some(key) => ModelConfig {
+            pretrained_backbone: Some(super::pretrain::trunk_of(upstream, key)?.to_string_lossy().into_owned()),
+            ..job.model.clone()
+        },
+        None => job.model.clone(),
+    };
     let run = TrainRun {
         demo_dir: upstream.get(&job.demos)?,
         agent_dir: upstream.get(&job.agents)?,
@@ -72,7 +90,7 @@ pub fn run(job: &TrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext
         out: staging,
         progress: ctx.progress,
     };
-    let summary = train(&job.model, &config, &run)?;
+    let summary = train(&model, &config, &run)?;
     Ok(StageOutputs {
         metrics: vec![
             (MetricName::FirstValBc, summary.first_val_bc),

@@ -1,0 +1,70 @@
+//! The pretrain stage: the policy's image trunk trained to find objects in an agent collection's first frames
+//! (the localisation check's regression), saved for the train stage to start from.
+use super::{MetricName, RunContext, StageOutputs, Upstream};
+use crate::config::CellConfig;
+use crate::eval::localise::{PretrainConfig, localise};
+use crate::pipeline::graph::Plan;
+use anyhow::Result;
+use std::path::{Path, PathBuf};
+
+/// Implementation version of trunk pretraining (part of every pretrain key).
+pub const VERSION: u32 = 1;
+
+/// The trunk's weights in a pretrain artifact (torchvision names, as `model.pretrained_backbone` reads them).
+pub const TRUNK_FILE: &str = "trunk.safetensors";
+
+/// What a pretrain stage runs: its settings, the trunk's shape, the seed and the agent collection's key.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PretrainJob {
+    pub pretrain: PretrainConfig,
+    pub backbone_width: i64,
+    pub backbone_stages: usize,
+    pub seed: u64,
+    /// Where it runs (not part of the key).
+    pub device: String,
+    pub agents: String,
+}
+
+/// Adds the pretraining a cell's `[pretrain]` section asks for on the agent collection `agents` (seeded by the
+/// cell's training seed, so each seed of the grid is an independent replicate); returns its key, or none when the
+/// cell has no such section.
+pub fn add(plan: &mut Plan, cell: &CellConfig, agents: &str) -> Option<String> {
+    let pretrain = cell.pretrain.clone()?;
+    let job = PretrainJob {
+        pretrain,
+        backbone_width: cell.model.backbone_width,
+        backbone_stages: cell.model.backbone_stages,
+        seed: cell.train.seed,
+        device: cell.train.device.clone(),
+        agents: agents.into(),
+    };
+    let inputs = serde_json::json!({
+        "pretrain": job.pretrain,
+        "backbone_width": job.backbone_width,
+        "backbone_stages": job.backbone_stages,
+        "seed": job.seed,
+    });
+    Some(plan.add(inputs, vec![agents.into()], super::Job::Pretrain(job)))
+}
+
+/// The trunk file of the finished pretrain stage `key`.
+pub fn trunk_of(upstream: &Upstream, key: &str) -> Result<PathBuf> {
+    Ok(upstream.get(key)?.join(TRUNK_FILE))
+}
+
+/// Trains the trunk into `staging`; reports its held-out errors beside the mean's.
+pub fn run(job: &PretrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
+    let config = job.pretrain.localise(job.backbone_width, job.backbone_stages, job.seed, staging.join(TRUNK_FILE));
+    let device = crate::device::parse_device(&ctx.device_or(&job.device))?;
+    let report = localise(upstream.get(&job.agents)?, &config, device)?;
+    let last = report.curve.last().expect("the check measures at its last step");
+    Ok(StageOutputs {
+        metrics: vec![
+            (MetricName::TrunkHeldOutErrorX, last.held_out[0]),
+            (MetricName::TrunkHeldOutErrorY, last.held_out[1]),
+            (MetricName::TrunkMeanErrorX, report.mean_baseline[0]),
+            (MetricName::TrunkMeanErrorY, report.mean_baseline[1]),
+        ],
+        ..StageOutputs::default()
+    })
+}
