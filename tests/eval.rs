@@ -130,6 +130,7 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         steps: 150,
         batch: 16,
         lr: 1e-3,
+        per_task: None,
         hold_out_every: 5,
         report_every: 50,
         seed: 0,
@@ -159,6 +160,10 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         // Objects lie anywhere in the 40 x 50 cm source bin: the mean misses by centimetres, not metres.
         assert!(r.mean_baseline.iter().all(|&e| e > 0.01 && e < 0.2), "{target:?}: {:?}", r.mean_baseline);
     }
+    // The first 10 slots of the task only: 8 training and 2 held-out layouts.
+    let subset = LocaliseConfig { per_task: Some(10), steps: 1, report_every: 1, ..config.clone() };
+    let r = localise(&dir.join("panda"), &subset, tch::Device::Cpu).unwrap();
+    assert_eq!((r.train_frames, r.held_out_frames), (8, 2));
     // Augmented training frames (same seed, same batches) train a different trunk.
     assert_ne!(last_train[1], last_train[2]);
     // The trained trunk starts a policy of the same widths through `model.pretrained_backbone`: every one of the

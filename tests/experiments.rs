@@ -109,3 +109,23 @@ fn window_start_is_checked_and_the_authors_value_leaves_keys_unchanged() {
     assert!(json(load("[train]\nwindow_start = 0.5\n").unwrap()).contains("\"window_start\":0.5"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_smaller_nested_size_pretrains_its_trunk_on_its_own_layouts() {
+    use oneshot_lab::pipeline::stages::plan;
+    let dir = std::env::temp_dir().join(format!("oneshot-pretrain-nested-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("exp.toml");
+    let text =
+        "[collect]\ntasks = [0]\n[model]\nbackbone_width = 8\n[pretrain]\nsteps = 10\n[grid]\nsizes = [16, 32]\n";
+    std::fs::write(&file, text).unwrap();
+    let p = plan(&Experiment::load(&file, None).unwrap());
+    let (small, large) = (&p.cells[0], &p.cells[1]);
+    assert_eq!(small.collect_agent, large.collect_agent, "one nested collection");
+    let (small_key, large_key) = (small.pretrain.clone().unwrap(), large.pretrain.clone().unwrap());
+    assert_ne!(small_key, large_key);
+    assert_eq!(p.stages[&small_key].inputs["per_task"], 16);
+    assert!(p.stages[&large_key].inputs.get("per_task").is_none(), "the largest size uses the whole collection");
+    assert!(p.stages[&small.train.clone().unwrap()].upstream.contains(&small_key));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

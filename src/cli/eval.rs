@@ -71,6 +71,7 @@ pub fn localise(a: LocaliseArgs) -> Result<()> {
         steps: a.steps,
         batch: a.batch,
         lr: a.lr,
+        per_task: None,
         hold_out_every: 5,
         report_every: a.report_every,
         seed: a.seed,

@@ -37,6 +37,8 @@ pub struct LocaliseConfig {
     pub steps: u64,
     pub batch: i64,
     pub lr: f64,
+    /// Only the first this many slots of each task are used (none: every trajectory of the collection).
+    pub per_task: Option<usize>,
     /// Every this many trajectories, one is held out (5: a fifth).
     pub hold_out_every: usize,
     /// Errors are measured every this many steps.
@@ -83,18 +85,20 @@ impl PretrainConfig {
         Ok(())
     }
 
-    /// The check's settings for a trunk of `backbone_width` and `backbone_stages`, seeded by `seed`, saved to
-    /// `trunk_out` (a fifth of the layouts held out, errors measured ten times).
+    /// The check's settings for a trunk of `backbone_width` and `backbone_stages` on the first `per_task` slots
+    /// of each task (none: all), seeded by `seed`, saved to `trunk_out` (a fifth of the layouts held out, errors
+    /// measured ten times).
     pub fn localise(
         &self,
-        backbone_width: i64,
-        backbone_stages: usize,
+        (backbone_width, backbone_stages): (i64, usize),
+        per_task: Option<usize>,
         seed: u64,
         trunk_out: PathBuf,
     ) -> LocaliseConfig {
         LocaliseConfig {
             backbone_width,
             backbone_stages,
+            per_task,
             steps: self.steps,
             batch: self.batch,
             lr: self.lr,
@@ -148,11 +152,13 @@ fn target_positions(t: &Trajectory, target: LocaliseTarget) -> Vec<f32> {
 fn first_frames(
     dir: &Path,
     target: LocaliseTarget,
+    per_task: Option<usize>,
     pick: impl Fn(usize) -> bool,
 ) -> Result<(FirstFrames, usize, usize)> {
     let manifest = Manifest::load(dir)?;
     let (mut frames, mut rgb, mut tasks, mut targets, mut size) = (vec![], vec![], vec![], vec![], (0, 0));
-    for (_, entry) in manifest.trajectories.iter().enumerate().filter(|(i, _)| pick(*i)) {
+    let used = manifest.trajectories.iter().filter(|e| per_task.is_none_or(|n| e.index < n));
+    for (_, entry) in used.enumerate().filter(|(i, _)| pick(*i)) {
         let t = Trajectory::from_bytes(&entry.read_verified(dir)?)?;
         let (h, w) = (t.meta.height, t.meta.width);
         size = (h, w);
@@ -195,8 +201,8 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         bail!("localise: hold_out_every must be at least 2, batch, steps and report_every at least 1");
     }
     let every = config.hold_out_every;
-    let (train, height, width) = first_frames(dir, config.target, |i| i % every != 0)?;
-    let (held_out, _, _) = first_frames(dir, config.target, |i| i % every == 0)?;
+    let (train, height, width) = first_frames(dir, config.target, config.per_task, |i| i % every != 0)?;
+    let (held_out, _, _) = first_frames(dir, config.target, config.per_task, |i| i % every == 0)?;
     // The targets are standardised by the training frames' statistics, as a regression head would want.
     let mean = train.targets.mean_dim([0i64].as_slice(), true, Kind::Float);
     let scale = train.targets.std_dim([0i64].as_slice(), false, true).clamp_min(1e-3);

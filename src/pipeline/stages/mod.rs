@@ -224,7 +224,7 @@ pub fn plan(experiment: &Experiment) -> Plan {
         let demos = collect::add(&mut plan, Robot::Sawyer, collected, c);
         let agents = collect::add(&mut plan, Robot::Panda, collected, c);
         let subset = (per_task < collected).then_some(per_task);
-        let pretrain = pretrain::add(&mut plan, c, &agents);
+        let pretrain = pretrain::add(&mut plan, c, &agents, subset);
         let train = train::add(&mut plan, c, &demos, &agents, subset, pretrain.as_deref());
         let data = [demos.clone(), agents.clone()];
         let checkpoints =

@@ -13,7 +13,8 @@ pub const VERSION: u32 = 1;
 /// The trunk's weights in a pretrain artifact (torchvision names, as `model.pretrained_backbone` reads them).
 pub const TRUNK_FILE: &str = "trunk.safetensors";
 
-/// What a pretrain stage runs: its settings, the trunk's shape, the seed and the agent collection's key.
+/// What a pretrain stage runs: its settings, the trunk's shape, the seed, the agent collection's key and how many
+/// slots per task it uses of it (none: all; a smaller size of a nested grid uses only its own layouts).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PretrainJob {
     pub pretrain: PretrainConfig,
@@ -23,12 +24,13 @@ pub struct PretrainJob {
     /// Where it runs (not part of the key).
     pub device: String,
     pub agents: String,
+    pub per_task: Option<usize>,
 }
 
-/// Adds the pretraining a cell's `[pretrain]` section asks for on the agent collection `agents` (seeded by the
-/// cell's training seed, so each seed of the grid is an independent replicate); returns its key, or none when the
-/// cell has no such section.
-pub fn add(plan: &mut Plan, cell: &CellConfig, agents: &str) -> Option<String> {
+/// Adds the pretraining a cell's `[pretrain]` section asks for on the agent collection `agents` (its first
+/// `per_task` slots of each task, if given: then the key says so), seeded by the cell's training seed, so each
+/// seed of the grid is an independent replicate; returns its key, or none when the cell has no such section.
+pub fn add(plan: &mut Plan, cell: &CellConfig, agents: &str, per_task: Option<usize>) -> Option<String> {
     let pretrain = cell.pretrain.clone()?;
     let job = PretrainJob {
         pretrain,
@@ -37,13 +39,17 @@ pub fn add(plan: &mut Plan, cell: &CellConfig, agents: &str) -> Option<String> {
         seed: cell.train.seed,
         device: cell.train.device.clone(),
         agents: agents.into(),
+        per_task,
     };
-    let inputs = serde_json::json!({
+    let mut inputs = serde_json::json!({
         "pretrain": job.pretrain,
         "backbone_width": job.backbone_width,
         "backbone_stages": job.backbone_stages,
         "seed": job.seed,
     });
+    if let Some(n) = per_task {
+        inputs["per_task"] = n.into();
+    }
     Some(plan.add(inputs, vec![agents.into()], super::Job::Pretrain(job)))
 }
 
@@ -54,7 +60,8 @@ pub fn trunk_of(upstream: &Upstream, key: &str) -> Result<PathBuf> {
 
 /// Trains the trunk into `staging`; reports its held-out errors beside the mean's.
 pub fn run(job: &PretrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
-    let config = job.pretrain.localise(job.backbone_width, job.backbone_stages, job.seed, staging.join(TRUNK_FILE));
+    let trunk = (job.backbone_width, job.backbone_stages);
+    let config = job.pretrain.localise(trunk, job.per_task, job.seed, staging.join(TRUNK_FILE));
     let device = crate::device::parse_device(&ctx.device_or(&job.device))?;
     let report = localise(upstream.get(&job.agents)?, &config, device)?;
     let last = report.curve.last().expect("the check measures at its last step");
