@@ -2,7 +2,7 @@
 use oneshot_lab::config::CellConfig;
 use oneshot_lab::data::loader::DeviceBatch;
 use oneshot_lab::model::architectures::ARCHITECTURES;
-use oneshot_lab::model::config::{Architecture, ModelConfig};
+use oneshot_lab::model::config::{Architecture, ModelConfig, TaskPass};
 use oneshot_lab::model::policy::Policy;
 use oneshot_lab::model::resnet::ResNet18;
 use oneshot_lab::train::adam::Adam;
@@ -63,6 +63,26 @@ fn future_frames_stay_invisible(model: ModelConfig) {
     let heads = a.inverse.is_some() && a.point.is_some();
     assert_eq!(heads, policy.registration().auxiliary_heads);
     assert!(diff(&a.actions.means.narrow(1, 4, 3), &b.actions.means.narrow(1, 4, 3)) > 1e-4, "later frames do change");
+}
+
+#[test]
+fn the_separate_task_pass_normalises_over_its_own_frames_only() {
+    // Swapping two later agent frames leaves the trunk's batch statistics as they were (they pool over all
+    // images) but changes the tokens of the pass over all frames, and so its batch norm: a task embedding taken
+    // from that pass moves, one from its own pass over [context, first agent frame] does not.
+    let _rng = seeded(2);
+    let context = images(2, 4);
+    let agent = images(2, 7);
+    let swapped =
+        Tensor::cat(&[agent.narrow(1, 0, 4), agent.narrow(1, 5, 1), agent.narrow(1, 4, 1), agent.narrow(1, 6, 1)], 1);
+    let point_shift = |task_pass: TaskPass| {
+        let (_vs, policy) = build_policy(&ModelConfig { task_pass, ..tiny() }, Device::Cpu).unwrap();
+        let a = policy.forward_t(&context, &agent, true).point.unwrap().mean;
+        let b = policy.forward_t(&context, &swapped, true).point.unwrap().mean;
+        (a - b).abs().max().double_value(&[])
+    };
+    assert!(point_shift(TaskPass::Separate) < 1e-5);
+    assert!(point_shift(TaskPass::Shared) > 1e-4);
 }
 
 #[test]

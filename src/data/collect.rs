@@ -12,6 +12,18 @@ use std::path::Path;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+/// Whether a collection's layouts recur under several tasks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LayoutSharing {
+    /// Each slot draws an environment from a pool with replacement; the layout depends on the environment and
+    /// the robot only, so about half the layouts recur under two or more tasks (the authors'
+    /// `collect_demonstrations.py`).
+    Shared,
+    /// Every slot has a layout of its own, derived from its task and slot.
+    Unique,
+}
+
 /// How trajectories are collected: the `[collect]` section of an experiment file (the robot and the trajectories
 /// per task come from the grid).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -19,6 +31,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 pub struct CollectSettings {
     /// Root seed; instance seeds derive from it, the robot, the task and the slot.
     pub seed: u64,
+    /// Whether layouts recur under several tasks (`shared`, the authors': each slot draws its environment from a
+    /// pool with replacement) or each slot has its own (`unique`).
+    pub layouts: LayoutSharing,
+    /// Size of the environment pool of `layouts = "shared"` (none: half the collection's trajectories, the
+    /// authors' `--n_env 800` for N = 1600).
+    pub layout_pool: Option<usize>,
     /// Task ids (0..16).
     pub tasks: Vec<usize>,
     /// Action budget of one expert episode.
@@ -36,6 +54,8 @@ impl Default for CollectSettings {
     fn default() -> Self {
         CollectSettings {
             seed: 0,
+            layouts: LayoutSharing::Shared,
+            layout_pool: None,
             tasks: (0..NUM_TASKS).collect(),
             max_actions: 100,
             max_attempts: 10,
@@ -62,6 +82,12 @@ impl CollectSettings {
         }
         if !(0.0..=0.1).contains(&self.action_noise) {
             bail!("collect.action_noise = {} out of range [0, 0.1] (metres)", self.action_noise);
+        }
+        if self.layout_pool == Some(0) {
+            bail!("collect.layout_pool = 0: the pool needs at least one environment");
+        }
+        if self.layout_pool.is_some() && self.layouts == LayoutSharing::Unique {
+            bail!("collect.layout_pool is set but collect.layouts = \"unique\" draws no pool");
         }
         if !(1..=100).contains(&self.jpeg_quality) {
             bail!("collect.jpeg_quality = {} out of range 1..=100", self.jpeg_quality);
@@ -96,9 +122,32 @@ impl CollectConfig {
         self.settings.validate()
     }
 
-    /// Seed of the layout of `attempt` for slot `index` of `task`.
+    /// Number of environments in the pool of shared layouts (none when every slot has its own layout).
+    pub fn pool_size(&self) -> Option<usize> {
+        match self.settings.layouts {
+            LayoutSharing::Unique => None,
+            LayoutSharing::Shared => Some(
+                self.settings.layout_pool.unwrap_or_else(|| (self.per_task * self.settings.tasks.len() / 2).max(1)),
+            ),
+        }
+    }
+
+    /// The pool environment that slot `index` of `task` draws (the same for both robots, so a demonstration and
+    /// the agent trajectory of its slot fall in the same split), when layouts are shared.
+    pub fn environment(&self, task: usize, index: usize) -> Option<u64> {
+        let pool = self.pool_size()? as u64;
+        Some(derive_seed("layout-pool", &[self.settings.seed, task as u64, index as u64]) % pool)
+    }
+
+    /// Seed of the layout of `attempt` for slot `index` of `task`. With shared layouts the first attempt's layout
+    /// depends on the slot's environment and the robot only; a retry draws a layout of the slot's own (the authors
+    /// change the layout after failed tries too).
     pub fn instance_seed(&self, task: usize, index: usize, attempt: usize) -> u64 {
-        derive_seed("collect", &[self.settings.seed, self.robot as u64, task as u64, index as u64, attempt as u64])
+        let (seed, robot) = (self.settings.seed, self.robot as u64);
+        match self.environment(task, index) {
+            Some(env) if attempt == 0 => derive_seed("collect-env", &[seed, robot, env]),
+            _ => derive_seed("collect", &[seed, robot, task as u64, index as u64, attempt as u64]),
+        }
     }
 }
 
@@ -194,6 +243,7 @@ fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -
             file,
             task: slot.task,
             index: slot.index,
+            environment: config.environment(slot.task, slot.index),
             instance_seed: seed,
             attempts: attempt + 1,
             steps: episode.steps.len(),
@@ -202,4 +252,61 @@ fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -
         });
     }
     bail!("expert failed {} attempts on task {} slot {}", c.max_attempts, slot.task, slot.index)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::config::EvalConfig;
+    use std::collections::{HashMap, HashSet};
+
+    /// First-attempt layout seeds of every slot of `config`, with the tasks each recurs under.
+    fn layouts(config: &CollectConfig) -> HashMap<u64, HashSet<usize>> {
+        let mut tasks: HashMap<u64, HashSet<usize>> = HashMap::new();
+        for &task in &config.settings.tasks {
+            for index in 0..config.per_task {
+                tasks.entry(config.instance_seed(task, index, 0)).or_default().insert(task);
+            }
+        }
+        tasks
+    }
+
+    #[test]
+    fn shared_layouts_recur_under_several_tasks_and_never_in_evaluation() {
+        // The authors' N = 1600 from a pool of 800 environments, drawn with replacement.
+        let config = CollectConfig::paper(Robot::Panda);
+        assert_eq!(config.pool_size(), Some(800));
+        let shared = layouts(&config);
+        let recurring = shared.values().filter(|t| t.len() >= 2).count();
+        // 800 (1 - e^-2) = 692 distinct environments expected.
+        assert!(shared.len() > 650 && shared.len() < 740, "{} distinct layouts", shared.len());
+        assert!(recurring > 300, "{recurring} layouts under two or more tasks");
+        // Both robots draw the same environment per slot, each with a layout of its own.
+        let demos = CollectConfig::paper(Robot::Sawyer);
+        assert_eq!(demos.environment(5, 17), config.environment(5, 17));
+        assert_ne!(demos.instance_seed(5, 17, 0), config.instance_seed(5, 17, 0));
+        // A retry leaves the pool; evaluation layouts avoid every training layout.
+        assert!(!shared.contains_key(&config.instance_seed(5, 17, 1)));
+        let seeds: HashSet<u64> = shared.keys().copied().collect();
+        let eval = EvalConfig { episodes: 160, ..EvalConfig::default() };
+        assert!(eval.episode_specs(&seeds).iter().all(|e| !seeds.contains(&e.agent_seed)));
+
+        let unique = CollectConfig {
+            settings: CollectSettings { layouts: LayoutSharing::Unique, ..CollectSettings::default() },
+            ..config
+        };
+        assert_eq!(unique.pool_size(), None);
+        assert!(layouts(&unique).values().all(|t| t.len() == 1));
+        assert_eq!(layouts(&unique).len(), 1600);
+    }
+
+    #[test]
+    fn a_pool_setting_without_a_pool_is_refused_by_name() {
+        let mut settings =
+            CollectSettings { layouts: LayoutSharing::Unique, layout_pool: Some(10), ..Default::default() };
+        assert!(settings.validate().unwrap_err().to_string().contains("collect.layout_pool"));
+        settings.layouts = LayoutSharing::Shared;
+        settings.layout_pool = Some(0);
+        assert!(settings.validate().unwrap_err().to_string().contains("collect.layout_pool = 0"));
+    }
 }

@@ -18,6 +18,10 @@ pub struct ManifestEntry {
     /// Slot within the task.
     pub index: usize,
     pub instance_seed: u64,
+    /// The pool environment the slot drew, when layouts are shared: its first attempt used that environment's
+    /// layout (a retry, a layout of the slot's own); the train/validation split goes by it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub environment: Option<u64>,
     /// Expert attempts this slot took (failed layouts are redrawn).
     pub attempts: usize,
     pub steps: usize,

@@ -1,7 +1,8 @@
 //! Training pairs: a demonstrator video and an agent trajectory of the same task, in the same split.
 //! A sample is the video's context frames, a window of agent frames, its actions and the point target.
 use super::augment::{AugmentDraw, Augmentation};
-use super::manifest::Manifest;
+use super::collect::CollectConfig;
+use super::manifest::{Manifest, ManifestEntry};
 use super::trajectory::Trajectory;
 use crate::model::config::{ContextMode, ModelConfig};
 use crate::sim::action::Action;
@@ -58,6 +59,8 @@ fn load_collection(dir: &Path, robot: Robot, per_task: Option<usize>) -> Result<
             );
         }
         manifest.trajectories.retain(|e| e.index < n);
+        // The environment pool stays the whole collection's, whose size the default derives from `per_task`.
+        manifest.config.settings.layout_pool = manifest.config.pool_size();
         manifest.config.per_task = n;
     }
     let trajs = manifest
@@ -71,10 +74,16 @@ fn load_collection(dir: &Path, robot: Robot, per_task: Option<usize>) -> Result<
     Ok((manifest, trajs))
 }
 
-/// Split of slot `index` among `per_task` slots: the last tenth (at least one) is validation.
-fn split_of(index: usize, per_task: usize, val_fraction: f64) -> Split {
-    let val = ((per_task as f64 * val_fraction).round() as usize).max(1);
-    if index + val >= per_task { Split::Val } else { Split::Train }
+/// Split of a trajectory, by layout: where layouts are shared, the environments in the last `val_fraction` of the
+/// pool (at least one) validate, so no validation layout is trained on under another task; where each slot has
+/// its own layout, the last `val_fraction` of each task's `per_task` slots (at least one).
+pub fn split_of(entry: &ManifestEntry, config: &CollectConfig, val_fraction: f64) -> Split {
+    let last = |n: usize| ((n as f64 * val_fraction).round() as usize).max(1);
+    let (position, count) = match (entry.environment, config.pool_size()) {
+        (Some(env), Some(pool)) => (env as usize, pool),
+        _ => (entry.index, config.per_task),
+    };
+    if position + last(count) >= count { Split::Val } else { Split::Train }
 }
 
 impl PairDataset {
@@ -113,12 +122,22 @@ impl PairDataset {
         let index = |m: &Manifest| -> [Vec<Vec<usize>>; 2] {
             let mut idx = [vec![Vec::new(); NUM_TASKS], vec![Vec::new(); NUM_TASKS]];
             for (k, e) in m.trajectories.iter().enumerate() {
-                let s = split_of(e.index, m.config.per_task, val_fraction) as usize;
+                let s = split_of(e, &m.config, val_fraction) as usize;
                 idx[s][e.task].push(k);
             }
             idx
         };
         let (demo_index, agent_index) = (index(&dm), index(&am));
+        for (split, name) in [(Split::Train, "training"), (Split::Val, "validation")] {
+            if agent_index[split as usize].iter().all(Vec::is_empty) {
+                bail!(
+                    "{}: no {name} trajectory (train.val_fraction = {val_fraction}, layout pool {:?}): a split \
+                     by layout needs a larger collection or collect.layout_pool",
+                    agent_dir.display(),
+                    am.config.pool_size()
+                );
+            }
+        }
         let frames: usize = demos.iter().chain(&agents).map(Trajectory::len).sum();
         let decoded = if frames * di.rgb_len() <= DECODE_AHEAD_BYTES {
             let decode = |trajs: &[Trajectory]| -> Result<Vec<Vec<Vec<u8>>>> {
@@ -388,10 +407,33 @@ mod tests {
     }
 
     #[test]
-    fn validation_takes_the_last_tenth_of_slots() {
-        let val: Vec<usize> = (0..20).filter(|&i| split_of(i, 20, 0.1) == Split::Val).collect();
+    fn validation_takes_the_last_tenth_of_slots_or_of_the_layout_pool() {
+        use crate::data::collect::LayoutSharing;
+        let mut config = CollectConfig::paper(Robot::Panda);
+        config.per_task = 20;
+        config.settings.layouts = LayoutSharing::Unique;
+        let entry = |index: usize, environment: Option<u64>| ManifestEntry {
+            file: String::new(),
+            task: 3,
+            index,
+            instance_seed: 0,
+            environment,
+            attempts: 1,
+            steps: 0,
+            bytes: 0,
+            blake3: String::new(),
+        };
+        let val: Vec<usize> = (0..20).filter(|&i| split_of(&entry(i, None), &config, 0.1) == Split::Val).collect();
         assert_eq!(val, vec![18, 19]);
-        assert_eq!(split_of(1, 2, 0.1), Split::Val);
-        assert_eq!(split_of(0, 2, 0.1), Split::Train);
+        config.per_task = 2;
+        assert_eq!(split_of(&entry(1, None), &config, 0.1), Split::Val);
+        assert_eq!(split_of(&entry(0, None), &config, 0.1), Split::Train);
+        // Shared layouts: 20 per task of 16 tasks draw from a pool of 160 environments; the last 16 validate,
+        // whatever the slot.
+        config.per_task = 20;
+        config.settings.layouts = LayoutSharing::Shared;
+        assert_eq!(config.pool_size(), Some(160));
+        assert_eq!(split_of(&entry(0, Some(144)), &config, 0.1), Split::Val);
+        assert_eq!(split_of(&entry(19, Some(143)), &config, 0.1), Split::Train);
     }
 }

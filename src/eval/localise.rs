@@ -6,7 +6,7 @@
 //! and the positions of all four objects, told nothing (finding objects at all). It measures the data and the
 //! trunk, not the policy: a frame size at which this fails cannot support a policy that succeeds.
 use crate::data::augment::{AugmentDraw, Augmentation};
-use crate::data::manifest::Manifest;
+use crate::data::manifest::{Manifest, ManifestEntry};
 use crate::data::trajectory::Trajectory;
 use crate::model::heads::spatial_softmax;
 use crate::model::resnet::ResNet18;
@@ -39,7 +39,7 @@ pub struct LocaliseConfig {
     pub lr: f64,
     /// Only the first this many slots of each task are used (none: every trajectory of the collection).
     pub per_task: Option<usize>,
-    /// Every this many trajectories, one is held out (5: a fifth).
+    /// Every this many trajectories (or, where layouts are shared, environments), one is held out (5: a fifth).
     pub hold_out_every: usize,
     /// Errors are measured every this many steps.
     pub report_every: u64,
@@ -153,12 +153,12 @@ fn first_frames(
     dir: &Path,
     target: LocaliseTarget,
     per_task: Option<usize>,
-    pick: impl Fn(usize) -> bool,
+    pick: impl Fn(usize, &ManifestEntry) -> bool,
 ) -> Result<(FirstFrames, usize, usize)> {
     let manifest = Manifest::load(dir)?;
     let (mut frames, mut rgb, mut tasks, mut targets, mut size) = (vec![], vec![], vec![], vec![], (0, 0));
     let used = manifest.trajectories.iter().filter(|e| per_task.is_none_or(|n| e.index < n));
-    for (_, entry) in used.enumerate().filter(|(i, _)| pick(*i)) {
+    for (_, entry) in used.enumerate().filter(|(i, e)| pick(*i, e)) {
         let t = Trajectory::from_bytes(&entry.read_verified(dir)?)?;
         let (h, w) = (t.meta.height, t.meta.width);
         size = (h, w);
@@ -201,8 +201,10 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         bail!("localise: hold_out_every must be at least 2, batch, steps and report_every at least 1");
     }
     let every = config.hold_out_every;
-    let (train, height, width) = first_frames(dir, config.target, config.per_task, |i| i % every != 0)?;
-    let (held_out, _, _) = first_frames(dir, config.target, config.per_task, |i| i % every == 0)?;
+    // Held out by layout: a shared layout's trajectories under other tasks are held out with it.
+    let held = |i: usize, e: &ManifestEntry| e.environment.map_or(i as u64, |env| env) % every as u64 == 0;
+    let (train, height, width) = first_frames(dir, config.target, config.per_task, |i, e| !held(i, e))?;
+    let (held_out, _, _) = first_frames(dir, config.target, config.per_task, held)?;
     // The targets are standardised by the training frames' statistics, as a regression head would want.
     let mean = train.targets.mean_dim([0i64].as_slice(), true, Kind::Float);
     let scale = train.targets.std_dim([0i64].as_slice(), false, true).clamp_min(1e-3);

@@ -158,6 +158,17 @@ mod tests {
     }
 
     #[test]
+    fn with_no_visible_frames_the_mask_is_lower_triangular_over_all_frames() {
+        let (frames, per) = (5, 3);
+        let m = frame_causal_mask(frames, per, 0, Device::Cpu);
+        for q in 0..frames * per {
+            for k in 0..frames * per {
+                assert_eq!(m.int64_value(&[q, k]) == 1, k / per <= q / per, "query {q}, key {k}");
+            }
+        }
+    }
+
+    #[test]
     fn channel_dropout_zeroes_whole_channels() {
         tch::manual_seed(0);
         let x = Tensor::ones([4, 10, 32], (Kind::Float, Device::Cpu));

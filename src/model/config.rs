@@ -16,6 +16,41 @@ pub enum ContextMode {
     Final,
 }
 
+/// Which frames a demonstration (context) frame attends to in the transformer's causal layers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ContextAttention {
+    /// Context frames at or before it, like every frame (the authors' `NonLocalLayer`: a lower-triangular mask
+    /// over all frames).
+    #[default]
+    Causal,
+    /// Every context frame, in both directions (agent frames still see only the past).
+    Full,
+}
+
+/// How the transformer computes its task embedding from [context, first agent frame].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskPass {
+    /// A second pass of the trunk features of those frames through positional encoding and the causal layers,
+    /// with batch-norm statistics and dropout draws of its own (the authors' `inverse_module.py`).
+    #[default]
+    Separate,
+    /// Those frames' tokens sliced out of the pass over all frames.
+    Shared,
+}
+
+/// Initial value of the action head's learned log-scales.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LogScaleInit {
+    /// Normal draws divided by sqrt(8) (the authors').
+    #[default]
+    Random,
+    /// Zero (a scale of 1).
+    Zero,
+}
+
 /// The policy architecture: a name registered in [`super::architectures::ARCHITECTURES`].
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(transparent)]
@@ -62,6 +97,11 @@ pub struct ModelConfig {
     /// Inner width of the query/key/value projections.
     pub attention_inner: i64,
     pub attention_heads: i64,
+    /// Which frames a context frame attends to in the causal layers (`causal`, the authors', or `full`).
+    pub context_attention: ContextAttention,
+    /// Whether the task embedding takes its own pass through the causal layers (`separate`, the authors') or
+    /// slices the pass over all frames (`shared`).
+    pub task_pass: TaskPass,
     /// Softmax temperature; default sqrt(feature channels), 512 in the paper.
     pub attention_temperature: Option<f64>,
     pub dropout: f64,
@@ -79,7 +119,10 @@ pub struct ModelConfig {
     pub mixtures: i64,
     /// Discretisation bins of each action dimension.
     pub bins: i64,
+    /// Lower bound of the action head's log-scales (the authors' -7).
     pub log_scale_min: f64,
+    /// Initial value of the action head's log-scales (`random`, the authors' normal / sqrt(8), or `zero`).
+    pub log_scale_init: LogScaleInit,
     pub context: ContextMode,
     /// Demonstrator frames for `context = "spread"` and `"final"`.
     pub context_frames: usize,
@@ -104,6 +147,8 @@ impl Default for ModelConfig {
             attention_layers: 2,
             attention_inner: 128,
             attention_heads: 4,
+            context_attention: ContextAttention::Causal,
+            task_pass: TaskPass::Separate,
             attention_temperature: None,
             dropout: 0.2,
             embed_hidden: 256,
@@ -114,6 +159,7 @@ impl Default for ModelConfig {
             mixtures: 2,
             bins: 256,
             log_scale_min: -7.0,
+            log_scale_init: LogScaleInit::Random,
             context: ContextMode::Spread,
             context_frames: 4,
             agent_frames: 7,

@@ -1,6 +1,6 @@
 //! The discretised logistic mixture action head (PixelCNN++ style, as in the paper's code): per action dimension a
 //! mixture of logistics over [-1, 1] cut into `bins` classes, with a learned constant log-scale per dimension.
-use super::config::ModelConfig;
+use super::config::{LogScaleInit, ModelConfig};
 use crate::sim::action::ACTION_DIM;
 use tch::nn::{self, Module};
 use tch::{Kind, Tensor};
@@ -19,6 +19,7 @@ pub struct MixtureSpec {
     pub mixtures: i64,
     pub bins: i64,
     pub log_scale_min: f64,
+    pub log_scale_init: LogScaleInit,
 }
 
 impl MixtureSpec {
@@ -29,6 +30,7 @@ impl MixtureSpec {
             mixtures: config.mixtures,
             bins: config.bins,
             log_scale_min: config.log_scale_min,
+            log_scale_init: config.log_scale_init,
         }
     }
 }
@@ -45,7 +47,12 @@ impl MixtureHead {
     /// A head reading `hidden`-wide vectors.
     pub fn new(vs: &nn::Path, hidden: i64, spec: MixtureSpec) -> MixtureHead {
         let params = nn::linear(vs / "params", hidden, 2 * spec.dims * spec.mixtures, Default::default());
-        let log_scale = vs.zeros("log_scale", &[spec.dims, 1]);
+        let log_scale = match spec.log_scale_init {
+            LogScaleInit::Zero => vs.zeros("log_scale", &[spec.dims, 1]),
+            LogScaleInit::Random => {
+                vs.var("log_scale", &[spec.dims, 1], nn::Init::Randn { mean: 0.0, stdev: 1.0 / 8f64.sqrt() })
+            }
+        };
         MixtureHead { spec, params, log_scale }
     }
 
@@ -119,7 +126,8 @@ mod tests {
         1.0 / (1.0 + (-x).exp())
     }
 
-    const SPEC: MixtureSpec = MixtureSpec { dims: 1, mixtures: 2, bins: 256, log_scale_min: -7.0 };
+    const SPEC: MixtureSpec =
+        MixtureSpec { dims: 1, mixtures: 2, bins: 256, log_scale_min: -7.0, log_scale_init: LogScaleInit::Zero };
 
     fn params(means: [f64; 2], log_scales: [f64; 2], logits: [f64; 2]) -> MixtureParams {
         let t = |v: [f64; 2]| Tensor::from_slice(&v).to_kind(Kind::Float).view([1, 1, 2]);

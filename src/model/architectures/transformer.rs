@@ -4,7 +4,7 @@ use super::Registration;
 use crate::model::attention::{
     AttentionLayer, AttentionSpec, ConvBlock, conv3d_config, frame_causal_mask, positional_encoding,
 };
-use crate::model::config::ModelConfig;
+use crate::model::config::{ContextAttention, ModelConfig, TaskPass};
 use crate::model::heads::{EmbeddingMlp, PolicyHeads, spatial_softmax};
 use crate::model::policy::{PolicyNet, PolicyOutput};
 use crate::model::resnet::ResNet18;
@@ -71,6 +71,8 @@ impl Mixer {
 pub struct TransformerPolicy {
     trunk: ResNet18,
     dropout: f64,
+    context_attention: ContextAttention,
+    task_pass: TaskPass,
     causal: Vec<Mixer>,
     task_attention: Mixer,
     task_conv: nn::Conv<[i64; 3]>,
@@ -97,6 +99,8 @@ impl TransformerPolicy {
         TransformerPolicy {
             trunk,
             dropout: config.dropout,
+            context_attention: config.context_attention,
+            task_pass: config.task_pass,
             causal,
             task_attention: Mixer::new(&(vs / "task_attention"), mixing, spec, false),
             task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv3d_config([0, 0, 0])),
@@ -125,14 +129,9 @@ impl PolicyNet for TransformerPolicy {
         let feats = self.features(&Tensor::cat(&[context, agent], 1), train);
         let (b, t, c, h, w) = (feats.size()[0], tc + ta, feats.size()[2], feats.size()[3], feats.size()[4]);
         let hw = h * w;
-        let device = feats.device();
         // [B, T, C, h, w] -> tokens [B, T*h*w, C]
-        let mut x = feats.permute([0, 1, 3, 4, 2]).reshape([b, t * hw, c]);
-        x = (x + positional_encoding(t * hw, c, device).unsqueeze(0)).dropout(self.dropout, train);
-        let mask = frame_causal_mask(t, hw, tc, device);
-        for layer in &self.causal {
-            x = layer.forward(&x, Some(&mask), (t, h, w), train);
-        }
+        let tokens = feats.permute([0, 1, 3, 4, 2]).reshape([b, t * hw, c]);
+        let x = self.mix(&tokens, tc, (t, h, w), train);
         let frames = x.view([b, t, h, w, c]).permute([0, 1, 4, 2, 3]);
 
         // Frame embeddings of the agent frames.
@@ -140,12 +139,33 @@ impl PolicyNet for TransformerPolicy {
         let e = self.embed.forward_t(&spatial_softmax(&agent_feats), train).view([b, ta, -1]);
 
         // Task embedding from the context and the first agent frame; the temporal convolution is unpadded.
-        let task_tokens = x.narrow(1, 0, (tc + 1) * hw);
+        let task_tokens = match self.task_pass {
+            TaskPass::Shared => x.narrow(1, 0, (tc + 1) * hw),
+            TaskPass::Separate => self.mix(&tokens.narrow(1, 0, (tc + 1) * hw), tc, (tc + 1, h, w), train),
+        };
         let task_tokens = self.task_attention.forward(&task_tokens, None, (tc + 1, h, w), train);
         let task_frames = task_tokens.view([b, tc + 1, h, w, c]).permute([0, 4, 1, 2, 3]);
         let pooled = task_frames.apply(&self.task_conv).mean_dim([2i64].as_slice(), false, tch::Kind::Float);
         let task = self.embed.forward_t(&spatial_softmax(&pooled), train);
 
         self.heads.forward(&task, &e)
+    }
+}
+
+impl TransformerPolicy {
+    /// Positional encoding, dropout and the causal layers over trunk tokens `[B, frames*h*w, C]` whose first
+    /// `context` frames are the demonstration's.
+    fn mix(&self, tokens: &Tensor, context: i64, (frames, h, w): (i64, i64, i64), train: bool) -> Tensor {
+        let (hw, c, device) = (h * w, tokens.size()[2], tokens.device());
+        let mut x = (tokens + positional_encoding(frames * hw, c, device).unsqueeze(0)).dropout(self.dropout, train);
+        let visible = match self.context_attention {
+            ContextAttention::Causal => 0,
+            ContextAttention::Full => context,
+        };
+        let mask = frame_causal_mask(frames, hw, visible, device);
+        for layer in &self.causal {
+            x = layer.forward(&x, Some(&mask), (frames, h, w), train);
+        }
+        x
     }
 }

@@ -8,7 +8,7 @@ use anyhow::Result;
 use std::path::Path;
 
 /// Implementation version of collection (part of every collect key).
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 
 /// What a collect stage runs.
 pub type CollectJob = CollectConfig;

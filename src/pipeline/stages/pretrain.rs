@@ -8,7 +8,7 @@ use anyhow::Result;
 use std::path::{Path, PathBuf};
 
 /// Implementation version of trunk pretraining (part of every pretrain key).
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// The trunk's weights in a pretrain artifact (torchvision names, as `model.pretrained_backbone` reads them).
 pub const TRUNK_FILE: &str = "trunk.safetensors";

@@ -9,7 +9,7 @@ use anyhow::Result;
 use std::path::Path;
 
 /// Implementation version of training (part of every train key).
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 
 /// What a train stage runs: the network and training settings, the keys of the two collections, how many
 /// slots per task it uses of them (none: all), and the pretrain stage whose trunk it starts from (if any).
