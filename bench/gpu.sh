@@ -14,19 +14,19 @@ data=$(mktemp -d)
 trap 'rm -rf "$data"' EXIT
 
 nvidia-smi -L
-say "bench-world --robot panda --episodes 4 --height 240 --width 320"
-lab bench-world --robot panda --episodes 4 --height 240 --width 320
+say "bench world --robot panda --episodes 4 --height 240 --width 320"
+lab bench world --robot panda --episodes 4 --height 240 --width 320
 for setting in "fp32 contiguous" "bf16 contiguous" "bf16 channels_last"; do
   set -- $setting
-  say "bench-train --config paper --device cuda --steps 20 --precision $1 --memory-format $2"
-  lab bench-train --config paper --device cuda --steps 20 --precision "$1" --memory-format "$2"
+  say "bench train --config paper --device cuda --steps 20 --precision $1 --memory-format $2"
+  lab bench train --config paper --device cuda --steps 20 --precision "$1" --memory-format "$2"
   for tune in "" --cudnn-benchmark; do
     say "python3 bench/reference.py --device cuda --steps 20 --precision $1 --memory-format $2 $tune"
     python3 bench/reference.py --device cuda --steps 20 --precision "$1" --memory-format "$2" $tune
   done
 done
-say "bench-train --config paper --device cuda --steps 10 --precision bf16 --memory-format channels_last --architectures all"
-lab bench-train --config paper --device cuda --steps 10 --precision bf16 --memory-format channels_last --architectures all
+say "bench train --config paper --device cuda --steps 10 --precision bf16 --memory-format channels_last --architectures all"
+lab bench train --config paper --device cuda --steps 10 --precision bf16 --memory-format channels_last --architectures all
 for robot in sawyer panda; do
   say "collect --robot $robot --per-task 8 --height 240 --width 320 (16 tasks, all cores)"
   start=$(date +%s%N)
@@ -35,7 +35,7 @@ for robot in sawyer panda; do
 done
 for at in host device; do
   for decode in "" --decode-on-use; do
-    say "bench-loader --device cuda --augment-on $at $decode"
-    lab bench-loader --demos "$data/sawyer" --agents "$data/panda" --device cuda --augment-on "$at" $decode
+    say "bench loader --device cuda --augment-on $at $decode"
+    lab bench loader --demos "$data/sawyer" --agents "$data/panda" --device cuda --augment-on "$at" $decode
   done
 done

@@ -1,4 +1,4 @@
-"""PyTorch eager reference for `oneshot-lab bench-train --config paper`.
+"""PyTorch eager reference for `oneshot-lab bench train --config paper`.
 
 The same network as the tool's transformer policy (ResNet-18 trunk, sinusoidal positions, two causal non-local
 attention layers, a non-causal task attention layer and unpadded temporal convolution, spatial softmax, one shared

@@ -2,7 +2,7 @@
 mod cli;
 
 use clap::Parser;
-use cli::args::{Cli, Command};
+use cli::args::{BenchCommand, Cli, Command};
 
 fn main() {
     // Exit quietly when stdout is closed early (e.g. `oneshot-lab query cells | head`).
@@ -20,7 +20,6 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
     match command {
         Command::ExpertCheck(a) => cli::world::expert_check(a),
         Command::Collect(a) => cli::world::collect(a),
-        Command::ContactSheet(a) => cli::world::contact_sheet(a),
         Command::Train(a) => cli::train::train(a),
         Command::Eval(a) => cli::eval::eval(a),
         Command::Probe(a) => cli::eval::probe(a),
@@ -34,10 +33,11 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Query(a) => cli::inspect::query(a),
         Command::Gc(a) => cli::inspect::gc(a),
         Command::Report(a) => cli::inspect::report(a),
-        Command::BenchWorld(a) => cli::bench_world::bench_world(a),
-        Command::BenchTrain(a) => cli::bench::train(a),
-        Command::BenchEval(a) => cli::bench::eval(a),
-        Command::BenchPlan(a) => cli::bench::plan(a),
-        Command::BenchLoader(a) => cli::bench::loader(a),
+        Command::Bench(BenchCommand::World(a)) => cli::bench_world::bench_world(a),
+        Command::Bench(BenchCommand::Train(a)) => cli::bench::train(a),
+        Command::Bench(BenchCommand::Eval(a)) => cli::bench::eval(a),
+        Command::Bench(BenchCommand::Plan(a)) => cli::bench::plan(a),
+        Command::Bench(BenchCommand::Loader(a)) => cli::bench::loader(a),
+        Command::ContactSheet(a) => cli::world::contact_sheet(a),
     }
 }

@@ -1,16 +1,15 @@
 //! Benchmarks that print figures: training step rate and memory beside the trunk alone, the data path's samples
 //! per second, evaluation rollouts per second, and the orchestrator's overhead on a large cached grid.
-use super::args::{BenchEvalArgs, BenchLoaderArgs, BenchPlanArgs, BenchTrainArgs};
 use super::default_workers;
 use anyhow::{Context, Result, bail};
 use oneshot_lab::data::augment::Augmentation;
-use oneshot_lab::data::loader::{AugmentAt, DeviceBatch};
+use oneshot_lab::data::loader::AugmentAt;
 use oneshot_lab::data::pairs::PairDataset;
-use oneshot_lab::data::throughput;
 use oneshot_lab::device::{autotune_convolutions, parse_device};
 use oneshot_lab::eval::rollout::rollouts;
 use oneshot_lab::eval::{EvalConfig, EvalOutput, Policy};
 use oneshot_lab::model::architectures::ARCHITECTURES;
+use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::resnet::ResNet18;
 use oneshot_lab::pipeline::load_plan;
@@ -19,15 +18,130 @@ use oneshot_lab::pipeline::store::{Claim, Store};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::train::config::{LossWeights, MemoryFormat, Precision, TrainConfig, check_precision};
+use oneshot_lab::train::throughput;
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained};
 use std::collections::HashSet;
+use std::path::PathBuf;
 use std::time::Instant;
 use tch::nn::{ModuleT, OptimizerConfig};
 use tch::{Device, Kind, Tensor, nn};
 
-/// `bench-train`: a configuration's training step rate beside its trunk alone.
+/// Arguments of the `bench train` command.
+#[derive(clap::Args)]
+pub struct BenchTrainArgs {
+    /// Model, frame size and batch to time.
+    #[arg(long, value_enum, default_value_t = BenchSize::Small)]
+    pub config: BenchSize,
+    #[arg(long, default_value_t = 5)]
+    pub steps: usize,
+    /// Override the configuration's batch size.
+    #[arg(long)]
+    pub batch: Option<usize>,
+    #[arg(long, default_value = "auto")]
+    pub device: String,
+    /// Architectures to time, comma separated, or `all` (default: the configuration's, the transformer).
+    #[arg(long)]
+    pub architectures: Option<String>,
+    /// Number type of the forward pass, as `train.precision`.
+    #[arg(long, value_enum, default_value_t = PrecisionArg::Fp32)]
+    pub precision: PrecisionArg,
+    /// Layout of the trunk's images, as `train.memory_format`.
+    #[arg(long, value_enum, default_value_t = MemoryFormatArg::Contiguous)]
+    pub memory_format: MemoryFormatArg,
+}
+
+/// A benchmark configuration: model, frame size and batch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BenchSize {
+    /// The paper's network at 240x320, batch 30.
+    Paper,
+    /// The smoke experiment's network at 64x80, batch 8.
+    Small,
+}
+
+/// The number type of the forward pass (`train.precision`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PrecisionArg {
+    /// Everything in fp32 (the authors').
+    #[value(name = "fp32")]
+    Fp32,
+    /// bf16 autocast: matrix products and convolutions in bf16, weights, gradients and the optimiser in fp32.
+    #[value(name = "bf16")]
+    Bf16,
+}
+
+/// Layout of image tensors in the trunk (`train.memory_format`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum MemoryFormatArg {
+    /// Channels before rows and columns (NCHW), PyTorch's default.
+    Contiguous,
+    /// Channels last (NHWC strides).
+    #[value(name = "channels_last")]
+    ChannelsLast,
+}
+
+/// Arguments of the `bench eval` command.
+#[derive(clap::Args)]
+pub struct BenchEvalArgs {
+    #[arg(long, default_value_t = 16)]
+    pub episodes: usize,
+    #[arg(long, default_value_t = 40)]
+    pub horizon: usize,
+    #[arg(long)]
+    pub workers: Option<usize>,
+}
+
+/// Arguments of the `bench plan` command.
+#[derive(clap::Args)]
+pub struct BenchPlanArgs {
+    /// Cells in the grid (stages are about twice as many).
+    #[arg(long, default_value_t = 200)]
+    pub cells: usize,
+}
+
+/// Arguments of the `bench loader` command.
+#[derive(clap::Args)]
+pub struct BenchLoaderArgs {
+    /// Demonstrator collection folder.
+    #[arg(long)]
+    pub demos: PathBuf,
+    /// Agent collection folder.
+    #[arg(long)]
+    pub agents: PathBuf,
+    #[arg(long, default_value_t = 30)]
+    pub batch: usize,
+    /// Batches timed (after one warm-up batch).
+    #[arg(long, default_value_t = 20)]
+    pub batches: usize,
+    /// Threads building each batch (default: CPU cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Build batches without augmentation.
+    #[arg(long)]
+    pub no_augment: bool,
+    /// Decode each frame's JPEG when it is used, as a dataset too large to hold decoded does.
+    #[arg(long)]
+    pub decode_on_use: bool,
+    /// Where batches are copied: `auto`, `cpu`, `cuda` or `cuda:N`.
+    #[arg(long, default_value = "auto")]
+    pub device: String,
+    /// Where frames are augmented, as `train.augment_on`.
+    #[arg(long, value_enum, default_value_t = AugmentOnArg::Host)]
+    pub augment_on: AugmentOnArg,
+}
+
+/// Where training frames are augmented (`train.augment_on`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum AugmentOnArg {
+    /// By the threads building the batch, on the host.
+    Host,
+    /// On the device, after the copy.
+    Device,
+}
+
+/// `bench train`: a configuration's training step rate beside its trunk alone.
 pub fn train(a: BenchTrainArgs) -> Result<()> {
-    let mut c = bench_config(&a.config)?;
+    let mut c = bench_config(a.config);
     c.batch = a.batch.unwrap_or(c.batch);
     let architectures: Vec<String> = match a.architectures.as_deref() {
         None => vec![c.model.architecture.0.clone()],
@@ -38,30 +152,28 @@ pub fn train(a: BenchTrainArgs) -> Result<()> {
         let names: Vec<&str> = ARCHITECTURES.iter().map(|r| r.name).collect();
         bail!("--architectures names `{unknown}`, which is not registered (all, {})", names.join(", "));
     }
-    let precision = match a.precision.as_str() {
-        "fp32" => Precision::Fp32,
-        "bf16" => Precision::Bf16,
-        other => bail!("--precision {other}: expected fp32 or bf16"),
+    let precision = match a.precision {
+        PrecisionArg::Fp32 => Precision::Fp32,
+        PrecisionArg::Bf16 => Precision::Bf16,
     };
-    let memory_format = match a.memory_format.as_str() {
-        "contiguous" => MemoryFormat::Contiguous,
-        "channels_last" => MemoryFormat::ChannelsLast,
-        other => bail!("--memory-format {other}: expected contiguous or channels_last"),
+    let memory_format = match a.memory_format {
+        MemoryFormatArg::Contiguous => MemoryFormat::Contiguous,
+        MemoryFormatArg::ChannelsLast => MemoryFormat::ChannelsLast,
     };
     bench_train(&c, a.steps.max(1), &a.device, &architectures, (precision, memory_format))
 }
 
-/// `bench-eval`: rollouts per second of a small network and of the random policy.
+/// `bench eval`: rollouts per second of a small network and of the random policy.
 pub fn eval(a: BenchEvalArgs) -> Result<()> {
     bench_eval(a.episodes.max(1), a.horizon.max(1), a.workers.unwrap_or_else(default_workers))
 }
 
-/// `bench-plan`: the orchestrator's overhead on a large cached grid.
+/// `bench plan`: the orchestrator's overhead on a large cached grid.
 pub fn plan(a: BenchPlanArgs) -> Result<()> {
     bench_plan(a.cells.max(1))
 }
 
-/// `bench-loader`: training samples/s the data path builds from two collections and copies to the device.
+/// `bench loader`: training samples/s the data path builds from two collections and copies to the device.
 pub fn loader(a: BenchLoaderArgs) -> Result<()> {
     let device = parse_device(&a.device)?;
     let threads = a.threads.unwrap_or_else(default_workers);
@@ -74,10 +186,9 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
     let model = ModelConfig::default();
     let augmentation = Augmentation::default();
     let augment = (!a.no_augment).then_some(&augmentation);
-    let at = match a.augment_on.as_str() {
-        "host" => AugmentAt::Host,
-        "device" => AugmentAt::Device(device),
-        other => bail!("--augment-on {other}: expected host or device"),
+    let (at, place) = match a.augment_on {
+        AugmentOnArg::Host => (AugmentAt::Host, "host"),
+        AugmentOnArg::Device => (AugmentAt::Device(device), "device"),
     };
     let rate = throughput::measure(&data, &model, a.batch, a.batches, threads, (augment, at), device)?;
     let frames = a.batch * (model.context_len() + model.agent_frames);
@@ -91,7 +202,7 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
         a.batch,
         frames,
         if augment.is_some() { "on" } else { "off" },
-        a.augment_on,
+        place,
         rate.threads
     );
     let per_batch = |s: f64| s / rate.batches as f64;
@@ -115,23 +226,22 @@ struct BenchConfig {
     batch: usize,
 }
 
-/// `paper` (240x320, batch 30, the paper's network) or `small` (the smoke experiment's network at 64x80).
-fn bench_config(name: &str) -> Result<BenchConfig> {
-    Ok(match name {
-        "paper" => BenchConfig {
+/// The configuration `--config` names.
+fn bench_config(size: BenchSize) -> BenchConfig {
+    match size {
+        BenchSize::Paper => BenchConfig {
             name: "paper",
             model: ModelConfig::default(),
             image: ImageSize { height: 240, width: 320 },
             batch: 30,
         },
-        "small" => BenchConfig {
+        BenchSize::Small => BenchConfig {
             name: "small",
             model: ModelConfig { backbone_width: 16, attention_inner: 32, embed_hidden: 64, ..ModelConfig::default() },
             image: ImageSize { height: 64, width: 80 },
             batch: 8,
         },
-        other => bail!("unknown benchmark configuration `{other}` (paper, small)"),
-    })
+    }
 }
 
 /// Peak resident memory of this process (kB), from /proc.
@@ -288,7 +398,7 @@ fn gpu_memory_held_mib() -> Option<u64> {
 /// Times evaluation of the `small` network (fresh weights: its speed does not depend on them), and of the random
 /// policy through the same path, with `workers` simulation threads.
 fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
-    let c = bench_config("small")?;
+    let c = bench_config(BenchSize::Small);
     let dir = std::env::temp_dir().join(format!("oneshot-bench-eval-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     tch::manual_seed(0);

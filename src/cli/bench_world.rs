@@ -1,14 +1,26 @@
-//! `bench-world`: physics and rendering throughput of the collection path (expert episodes with IK, control,
+//! `bench world`: physics and rendering throughput of the collection path (expert episodes with IK, control,
 //! frames, JPEG encoding and file writing) beside a bare MuJoCo step + render loop of the same scene, in one run.
-use super::args::BenchWorldArgs;
+use super::options::{FrameArgs, parse_robot};
 use anyhow::{Context, Result};
-use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
+use oneshot_lab::data::collect::collect;
+use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
 use oneshot_lab::sim::env::{Env, WorldConfig};
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::task::{Instance, Task};
 use std::time::Instant;
 
-/// `bench-world`: runs the benchmark and prints its figures.
+/// Arguments of the `bench world` command.
+#[derive(clap::Args)]
+pub struct BenchWorldArgs {
+    #[arg(long, value_parser = parse_robot, default_value = "sawyer")]
+    pub robot: Robot,
+    #[arg(long, default_value_t = 4)]
+    pub episodes: usize,
+    #[command(flatten)]
+    pub frames: FrameArgs,
+}
+
+/// `bench world`: runs the benchmark and prints its figures.
 pub fn bench_world(a: BenchWorldArgs) -> Result<()> {
     let world = a.frames.world();
     let bench = measure(a.robot, &world, a.episodes)?;

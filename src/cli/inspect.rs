@@ -1,5 +1,5 @@
 //! `why`, `status`, `query`, `gc` and `report`: looking into (and tidying) the results store.
-use super::args::{Format, GcArgs, QueryArgs, ReportArgs, StatusArgs, WhyArgs};
+use super::options::{StoreArgs, StoreDir};
 use anyhow::{Result, bail};
 use oneshot_lab::config::Experiment;
 use oneshot_lab::pipeline::gc::{remove_artifacts, unused_artifacts};
@@ -10,6 +10,65 @@ use oneshot_lab::pipeline::store::jobs::SLURM_HOST;
 use oneshot_lab::pipeline::store::read::StageRecord;
 use oneshot_lab::pipeline::store::{DATABASE, Store, now};
 use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
+
+/// Arguments of the `why` command.
+#[derive(clap::Args)]
+pub struct WhyArgs {
+    /// Stage key or its first characters.
+    pub stage: String,
+    #[command(flatten)]
+    pub store: StoreDir,
+}
+
+/// Arguments of the `status` command.
+#[derive(clap::Args)]
+pub struct StatusArgs {
+    #[command(flatten)]
+    pub store: StoreDir,
+}
+
+/// Arguments of the `query` command.
+#[derive(clap::Args)]
+pub struct QueryArgs {
+    pub query: String,
+    #[arg(long, value_enum, default_value_t = Format::Table)]
+    pub format: Format,
+    #[command(flatten)]
+    pub store: StoreDir,
+}
+
+/// Output formats of `query`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// Aligned columns (cells cut at 60 characters).
+    Table,
+    /// Comma-separated values under a header line.
+    Csv,
+    /// An array of objects, one per row.
+    Json,
+}
+
+/// Arguments of the `gc` command.
+#[derive(clap::Args)]
+pub struct GcArgs {
+    pub files: Vec<PathBuf>,
+    #[command(flatten)]
+    pub store: StoreArgs,
+    #[arg(long)]
+    pub delete: bool,
+}
+
+/// Arguments of the `report` command.
+#[derive(clap::Args)]
+pub struct ReportArgs {
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub store: StoreArgs,
+    /// Output folder (default: STORE/reports/NAME).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
 
 /// Flattens JSON into `dotted.path -> value text`.
 fn flatten(prefix: &str, v: &serde_json::Value, out: &mut BTreeMap<String, String>) {
@@ -52,14 +111,14 @@ fn differences(stage: &StageRecord, other: &StageRecord) -> Vec<String> {
 /// Explains a stage (a key or its start): its state, and which inputs differ from the nearest cached stage of
 /// the same kind.
 pub fn why(a: WhyArgs) -> Result<()> {
-    let store = Store::open_existing(&a.store)?;
+    let store = Store::open_existing(&a.store.store)?;
     let found = store.stages_with_prefix(&a.stage)?;
     let stage = match found.as_slice() {
         [one] => one,
         [] => bail!(
             "no stage key starts with `{}` in {} (run `plan` or `run` first)",
             a.stage,
-            a.store.join(DATABASE).display()
+            a.store.store.join(DATABASE).display()
         ),
         many => bail!("`{}` matches {} stages; give more of the key", a.stage, many.len()),
     };
@@ -85,9 +144,9 @@ pub fn why(a: WhyArgs) -> Result<()> {
 
 /// Prints stage counts by kind and status, running attempts and recent failures.
 pub fn status(a: StatusArgs) -> Result<()> {
-    let mut store = Store::open_existing(&a.store)?;
-    println!("store {}", a.store.join(DATABASE).display());
-    let slurm = detached::catch_up(&mut store, &a.store).unwrap_or_else(|e| {
+    let mut store = Store::open_existing(&a.store.store)?;
+    println!("store {}", a.store.store.join(DATABASE).display());
+    let slurm = detached::catch_up(&mut store, &a.store.store).unwrap_or_else(|e| {
         println!("  warning: Slurm jobs not checked: {e:#}");
         Default::default()
     });
@@ -130,7 +189,7 @@ fn text(v: &serde_json::Value) -> String {
 
 /// Runs a named query or raw SQL against the store, read-only, and prints the rows.
 pub fn query(a: QueryArgs) -> Result<()> {
-    let q = Store::query_read_only(&a.store, &a.query)?;
+    let q = Store::query_read_only(&a.store.store, &a.query)?;
     match a.format {
         Format::Json => {
             let rows: Vec<serde_json::Value> = q
@@ -177,9 +236,9 @@ pub fn query(a: QueryArgs) -> Result<()> {
 /// Lists (or with `--delete` removes) artifact folders that no stage of the given experiment files uses.
 pub fn gc(a: GcArgs) -> Result<()> {
     let plans =
-        a.files.iter().map(|f| load_plan(f, a.profile.as_deref()).map(|(_, p)| p)).collect::<Result<Vec<_>>>()?;
-    let mut store = Store::open_existing(&a.store)?;
-    let unused = unused_artifacts(&a.store, &plans)?;
+        a.files.iter().map(|f| load_plan(f, a.store.profile.as_deref()).map(|(_, p)| p)).collect::<Result<Vec<_>>>()?;
+    let mut store = Store::open_existing(&a.store.dir.store)?;
+    let unused = unused_artifacts(&a.store.dir.store, &plans)?;
     if a.delete {
         remove_artifacts(&mut store, &unused)?;
     }
@@ -195,8 +254,8 @@ pub fn gc(a: GcArgs) -> Result<()> {
 /// Rebuilds an experiment's tables and figures from the store alone.
 pub fn report(a: ReportArgs) -> Result<()> {
     let experiment = Experiment::load(&a.file, a.store.profile.as_deref())?;
-    let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.store, &experiment.name));
-    let store = Store::open_existing(&a.store.store)?;
+    let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.dir.store, &experiment.name));
+    let store = Store::open_existing(&a.store.dir.store)?;
     oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
     println!("wrote {}", out.join("index.md").display());
     Ok(())

@@ -1,11 +1,14 @@
-//! The command-line layer, private to the binary: arguments, and one handler per command that calls the library
-//! and prints.
+//! The command-line layer, private to the binary: the command tree (`args`), the options commands share
+//! (`options`), and per group of commands a module with their arguments and handlers, which call the library and
+//! print.
 pub mod args;
 pub mod bench;
 pub mod bench_world;
 pub mod eval;
 pub mod inspect;
+pub mod options;
 pub mod orchestrate;
+pub mod print;
 pub mod train;
 pub mod world;
 

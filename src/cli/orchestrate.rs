@@ -1,14 +1,93 @@
-//! `run`, `run-stage` and `plan`: an experiment file against the results store.
-use super::args::{CancelArgs, PlanArgs, RunArgs, RunStageArgs};
+//! `run`, `run-stage`, `plan` and `cancel`: an experiment file against the results store.
 use super::default_workers;
-use anyhow::{Result, bail};
+use super::options::StoreArgs;
+use anyhow::{Context, Result, bail};
 use oneshot_lab::config::{Experiment, Grid};
+use oneshot_lab::pipeline::events::{RunEvent, RunEvents};
 use oneshot_lab::pipeline::graph::{Plan, short};
 use oneshot_lab::pipeline::load_plan;
-use oneshot_lab::pipeline::scheduler::{RunOptions, RunReport, display_name, run as run_plan};
+use oneshot_lab::pipeline::scheduler::{RunOptions, RunReport, run as run_plan};
+use oneshot_lab::pipeline::selection::{Pattern, display_name};
 use oneshot_lab::pipeline::slurm::{SlurmOptions, detached, run_stage as run_one_stage};
 use oneshot_lab::pipeline::stages::{self, collection_totals};
 use oneshot_lab::pipeline::store::{StageState, Store};
+use std::path::PathBuf;
+
+/// Arguments of the `run` command.
+#[derive(clap::Args)]
+pub struct RunArgs {
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub store: StoreArgs,
+    /// Stages executed at once.
+    #[arg(long, default_value_t = 1)]
+    pub jobs: usize,
+    /// Simulation threads per collection or evaluation stage (default: CPU cores).
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// Only cells whose `cell/kind` label matches (`*` wildcards), plus what they need.
+    #[arg(long)]
+    pub only: Option<String>,
+    /// Re-run matching stages and everything below them.
+    #[arg(long)]
+    pub force: Option<String>,
+    /// Show what would run.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// CUDA device indices, one per concurrent network stage (e.g. 0,1).
+    #[arg(long, value_delimiter = ',')]
+    pub gpus: Vec<usize>,
+    /// Run each stage as a Slurm job (`sbatch --wait`); `--jobs` bounds jobs in flight.
+    #[arg(long)]
+    pub slurm: bool,
+    /// With --slurm: submit every stage at once, each job waiting on its upstream jobs, and exit; `status` and the
+    /// next `run` record what the jobs did, `cancel` stops them.
+    #[arg(long, requires = "slurm")]
+    pub detach: bool,
+    /// Extra sbatch argument for every job (repeatable), e.g. --slurm-arg=--partition=cpu.
+    #[arg(long = "slurm-arg", allow_hyphen_values = true)]
+    pub slurm_args: Vec<String>,
+    /// Extra sbatch argument for network stages (repeatable), e.g. --slurm-gpu-arg=--gres=gpu:1.
+    #[arg(long = "slurm-gpu-arg", allow_hyphen_values = true)]
+    pub slurm_gpu_args: Vec<String>,
+}
+
+/// Arguments of the `run-stage` command.
+#[derive(clap::Args)]
+pub struct RunStageArgs {
+    pub file: PathBuf,
+    #[arg(long)]
+    pub key: String,
+    #[command(flatten)]
+    pub store: StoreArgs,
+    #[arg(long)]
+    pub workers: Option<usize>,
+}
+
+/// Arguments of the `plan` command.
+#[derive(clap::Args)]
+pub struct PlanArgs {
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub store: StoreArgs,
+}
+
+/// Arguments of the `cancel` command.
+#[derive(clap::Args)]
+pub struct CancelArgs {
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub store: StoreArgs,
+}
+
+/// Prints a run's events on standard error, as they happen.
+struct PrintEvents;
+
+impl RunEvents for PrintEvents {
+    fn report(&self, event: RunEvent) {
+        eprintln!("{event}");
+    }
+}
 
 /// Runs what is missing, records the experiment's cells and (unless `--only` or a dry run) writes its report.
 pub fn run(a: RunArgs) -> Result<()> {
@@ -23,16 +102,16 @@ pub fn run(a: RunArgs) -> Result<()> {
     let opts = RunOptions {
         slurm,
         jobs: a.jobs,
-        only: a.only.clone(),
-        force: a.force.clone(),
+        only: a.only.as_deref().map(Pattern::new).transpose().context("--only")?,
+        force: a.force.as_deref().map(Pattern::new).transpose().context("--force")?,
         dry_run: a.dry_run,
         gpus: a.gpus.iter().map(|g| format!("cuda:{g}")).collect(),
         workers: a.workers.unwrap_or_else(default_workers),
         progress: true,
         detach: a.detach,
     };
-    let root = &a.store.store;
-    let report = run_plan(&plan, root, &opts)?;
+    let root = &a.store.dir.store;
+    let report = run_plan(&plan, root, &opts, &PrintEvents)?;
     let labels = plan.labels();
     if opts.dry_run {
         println!("{} stages cached, {} to run:", report.cached.len(), report.would_run.len());
@@ -93,7 +172,7 @@ fn detached_summary(name: &str, a: &RunArgs, report: &RunReport, plan: &Plan) ->
     for (k, e) in &report.failed {
         println!("  refused {}: {e}", plan_stage(k));
     }
-    let store = a.store.store.display();
+    let store = a.store.dir.store.display();
     let profile = a.store.profile.as_ref().map(|p| format!(" --profile {p}")).unwrap_or_default();
     println!(
         "follow with `oneshot-lab status --store {store}`; when the jobs are done, `oneshot-lab run {}{profile} \
@@ -109,9 +188,9 @@ fn detached_summary(name: &str, a: &RunArgs, report: &RunReport, plan: &Plan) ->
 /// Cancels the queued and running Slurm jobs of an experiment's stages and fails those stages.
 pub fn cancel(a: CancelArgs) -> Result<()> {
     let (experiment, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
-    let mut store = Store::open_existing(&a.store.store)?;
+    let mut store = Store::open_existing(&a.store.dir.store)?;
     let keys = plan.order.iter().cloned().collect();
-    let cancelled = detached::cancel(&mut store, &a.store.store, &keys)?;
+    let cancelled = detached::cancel(&mut store, &a.store.dir.store, &keys)?;
     println!("{}: {} Slurm jobs cancelled", experiment.name, cancelled.len());
     for (k, job) in &cancelled {
         println!("  job {job}: {}", display_name(&plan.stages[k], &plan.labels()));
@@ -122,7 +201,7 @@ pub fn cancel(a: CancelArgs) -> Result<()> {
 /// Runs one stage of an experiment, as a Slurm job does.
 pub fn run_stage(a: RunStageArgs) -> Result<()> {
     let (_, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
-    run_one_stage(&plan, &a.key, &a.store.store, a.workers.unwrap_or_else(default_workers))
+    run_one_stage(&plan, &a.key, &a.store.dir.store, a.workers.unwrap_or_else(default_workers))
 }
 
 fn state_word(s: &StageState) -> &'static str {
@@ -137,7 +216,7 @@ fn state_word(s: &StageState) -> &'static str {
 /// Prints the grid as cells x stages with their state and an estimate of the time left.
 pub fn plan(a: PlanArgs) -> Result<()> {
     let (experiment, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
-    let mut store = Store::open(&a.store.store)?;
+    let mut store = Store::open(&a.store.dir.store)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     println!("{}: {} cells, {} distinct stages", experiment.name, plan.cells.len(), plan.stages.len());
     if experiment.grid.nested {

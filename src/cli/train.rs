@@ -1,8 +1,31 @@
 //! `train`: a policy on a demonstrator and an agent collection.
-use super::args::TrainArgs;
 use anyhow::Result;
 use oneshot_lab::config::CellConfig;
 use oneshot_lab::train::{TrainRun, train as run};
+use std::path::PathBuf;
+
+/// Arguments of the `train` command.
+#[derive(clap::Args)]
+pub struct TrainArgs {
+    /// Demonstrator (Sawyer) collection folder.
+    #[arg(long)]
+    pub demos: PathBuf,
+    /// Agent (Panda) collection folder.
+    #[arg(long)]
+    pub agents: PathBuf,
+    /// Training folder: checkpoints, loss curve, final weights.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// TOML file with optional [model] and [train] tables (paper defaults otherwise).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    #[arg(long)]
+    pub steps: Option<u64>,
+    #[arg(long)]
+    pub batch_size: Option<usize>,
+    #[arg(long)]
+    pub device: Option<String>,
+}
 
 /// Trains into the output folder (resuming from its latest checkpoint) and prints the summary.
 pub fn train(a: TrainArgs) -> Result<()> {

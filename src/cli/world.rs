@@ -1,20 +1,104 @@
 //! `expert-check`, `collect` and `contact-sheet`: the world and its scripted expert.
-use super::args::{CollectArgs, ContactSheetArgs, ExpertCheckArgs, parse_named};
 use super::default_workers;
+use super::options::{FrameArgs, parse_robot};
 use anyhow::{Context, Result, bail};
-use oneshot_lab::data::collect::{self, CollectConfig};
-use oneshot_lab::sim::env::{Env, WorldConfig};
+use oneshot_lab::data::collect;
+use oneshot_lab::data::collect_config::CollectConfig;
+use oneshot_lab::sim::env::{Env, GripperYaw, WorldConfig};
 use oneshot_lab::sim::expert_check::{ExpertReport, expert_check as check};
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::task::{Instance, NUM_TASKS, Task};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// Arguments of the `expert-check` command.
+#[derive(clap::Args)]
+pub struct ExpertCheckArgs {
+    #[arg(long, value_parser = parse_robot)]
+    pub robot: Robot,
+    /// Instances of each of the 16 tasks.
+    #[arg(long, default_value_t = 10)]
+    pub per_task: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Action budget per episode (default: collect.max_actions).
+    #[arg(long)]
+    pub max_actions: Option<usize>,
+    /// The expert's gripper yaw rule (default: the robot's in the default world).
+    #[arg(long, value_enum)]
+    pub gripper_yaw: Option<YawRule>,
+    /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
+    #[arg(long)]
+    pub close_on_arrival: bool,
+}
+
+/// How the scripted expert turns its gripper about the vertical (`world.demo_yaw`, `world.agent_yaw`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum YawRule {
+    /// One orientation for the whole episode, the robot's rest yaw.
+    Fixed,
+    /// Turned towards the object's bearing from the gripper at the start.
+    Heading,
+    /// Turned so that the fingers close across the object's narrow side.
+    #[value(name = "object_yaw")]
+    ObjectYaw,
+}
+
+/// Arguments of the `collect` command.
+#[derive(clap::Args)]
+pub struct CollectArgs {
+    #[arg(long, value_parser = parse_robot)]
+    pub robot: Robot,
+    /// Output folder (must not exist; it appears only when complete).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Task ids, comma separated (default: all 16).
+    #[arg(long, value_delimiter = ',')]
+    pub tasks: Option<Vec<usize>>,
+    /// Trajectories per task (default: the paper's 100).
+    #[arg(long)]
+    pub per_task: Option<usize>,
+    /// Root seed of the layouts (default: collect.seed).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Parallel workers (default: CPU cores).
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// JPEG quality of stored frames (default: collect.jpeg_quality).
+    #[arg(long)]
+    pub jpeg_quality: Option<u8>,
+    /// Noise (m) on the executed position targets; the expert's own actions are recorded (default:
+    /// collect.action_noise).
+    #[arg(long)]
+    pub action_noise: Option<f64>,
+    /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
+    #[arg(long)]
+    pub close_on_arrival: bool,
+    #[command(flatten)]
+    pub frames: FrameArgs,
+}
+
+/// Arguments of the `contact-sheet` command.
+#[derive(clap::Args)]
+pub struct ContactSheetArgs {
+    #[arg(long, default_value = "contact_sheet.png")]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 4)]
+    pub instances: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub frames: FrameArgs,
+}
 
 /// `expert-check`: the expert's staged success per task.
 pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
     let mut world = WorldConfig { close_on_arrival: a.close_on_arrival, ..WorldConfig::default() };
-    if let Some(rule) = &a.gripper_yaw {
-        let rule =
-            parse_named(rule).map_err(|e| anyhow::anyhow!("--gripper-yaw {e} (fixed, heading or object_yaw)"))?;
+    if let Some(rule) = a.gripper_yaw {
+        let rule = match rule {
+            YawRule::Fixed => GripperYaw::Fixed,
+            YawRule::Heading => GripperYaw::Heading,
+            YawRule::ObjectYaw => GripperYaw::ObjectYaw,
+        };
         match a.robot {
             Robot::Sawyer => world.demo_yaw = rule,
             Robot::Panda => world.agent_yaw = rule,

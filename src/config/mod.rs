@@ -3,16 +3,20 @@
 //!
 //! Resolution order (later wins): included file, this file, the chosen profile, then a cell's variant.
 use crate::eval::EvalConfig;
-use crate::eval::localise::PretrainConfig;
 use crate::model::config::ModelConfig;
 use crate::sim::env::WorldConfig;
 use crate::train::config::TrainConfig;
+use crate::train::pretrain::PretrainConfig;
 use anyhow::{Context, Result, bail};
+use file::{FileShape, line_of, located, merge, read_table};
+use rules::{reject_train_seed, resolve, validate_grid};
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
 use std::path::Path;
 
-pub use crate::data::collect::CollectSettings;
+pub use crate::data::collect_config::CollectSettings;
+
+mod file;
+mod rules;
 
 /// Reference policies that are evaluated once per experiment through the same path as the models.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -76,47 +80,9 @@ pub struct CellConfig {
     pub collect: CollectSettings,
     pub model: ModelConfig,
     /// A stage that trains the image trunk before the policy (absent: the authors' start).
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub pretrain: Option<PretrainConfig>,
     pub train: TrainConfig,
     pub eval: EvalConfig,
-}
-
-/// The top level of an experiment file after its include and profile are merged in: sections stay tables
-/// (merged with variants before they are typed), the rest is typed here.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FileShape {
-    name: Option<String>,
-    description: Option<String>,
-    world: Option<toml::Table>,
-    collect: Option<toml::Table>,
-    model: Option<toml::Table>,
-    pretrain: Option<toml::Table>,
-    train: Option<toml::Table>,
-    eval: Option<toml::Table>,
-    #[serde(default)]
-    grid: Grid,
-    #[serde(default)]
-    variants: BTreeMap<String, toml::Table>,
-    /// Already merged in (the chosen one) when the shape is read.
-    #[serde(default, rename = "profiles")]
-    _profiles: Option<toml::Table>,
-}
-
-impl FileShape {
-    /// The sections as one table, the base every variant starts from.
-    fn sections(&self) -> toml::Table {
-        let all = [
-            ("world", &self.world),
-            ("collect", &self.collect),
-            ("model", &self.model),
-            ("pretrain", &self.pretrain),
-            ("train", &self.train),
-            ("eval", &self.eval),
-        ];
-        all.into_iter().filter_map(|(k, v)| Some((k.to_string(), toml::Value::Table(v.clone()?)))).collect()
-    }
 }
 
 /// A cell of the grid.
@@ -145,58 +111,6 @@ pub struct Experiment {
     pub grid: Grid,
     pub base: CellConfig,
     pub cells: Vec<Cell>,
-}
-
-/// Deep-merges `over` into `base` (tables merge key by key; anything else is replaced).
-fn merge(base: &mut toml::Table, over: &toml::Table) {
-    for (k, v) in over {
-        match (base.get_mut(k), v) {
-            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
-            _ => {
-                base.insert(k.clone(), v.clone());
-            }
-        }
-    }
-}
-
-/// The 1-based line of the first occurrence of `key` as a TOML key in `text`.
-fn line_of(text: &str, key: &str) -> Option<usize> {
-    text.lines()
-        .position(|l| {
-            let l = l.trim_start();
-            l.starts_with(key) || l.contains(&format!(".{key}")) || l.contains(&format!("{key} ="))
-        })
-        .map(|i| i + 1)
-}
-
-/// Reads one file (and, recursively, its include) into a merged table.
-fn read_table(path: &Path, depth: usize) -> Result<(toml::Table, String)> {
-    if depth > 8 {
-        bail!("{}: include chain deeper than 8 files", path.display());
-    }
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut table: toml::Table = toml::from_str(&text).with_context(|| format!("in {}", path.display()))?;
-    let Some(include) = table.remove("include") else { return Ok((table, text)) };
-    let include = include.as_str().with_context(|| format!("{}: include must be a string", path.display()))?;
-    let base_path = path.parent().unwrap_or(Path::new(".")).join(include);
-    let (mut merged, _) =
-        read_table(&base_path, depth + 1).with_context(|| format!("included from {}", path.display()))?;
-    merged.remove("name");
-    merged.remove("description");
-    merge(&mut merged, &table);
-    Ok((merged, text))
-}
-
-/// A toml error as `FILE (line N): in WHAT: message`, the line from the error's position in `text` or else
-/// from the key the message names.
-fn located(e: toml::de::Error, file: &str, what: &str, text: &str) -> anyhow::Error {
-    let msg = e.message().to_string();
-    let at_span = e.span().and_then(|s| text.get(..s.start)).map(|before| before.matches('\n').count() + 1);
-    let line = at_span
-        .or_else(|| msg.split('`').nth(1).and_then(|key| line_of(text, key)))
-        .map(|l| format!(" (line {l})"))
-        .unwrap_or_default();
-    anyhow::anyhow!("{file}{line}: in {what}: {msg}")
 }
 
 impl Experiment {
@@ -267,95 +181,7 @@ impl Experiment {
     }
 }
 
-/// A cell's training seed comes from `grid.seeds`: a `train.seed` in the file would be silently overwritten.
-fn reject_train_seed(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<()> {
-    let nested = table.get("train").and_then(|t| t.as_table()).is_some_and(|t| t.contains_key("seed"));
-    if nested || table.contains_key("train.seed") {
-        let line = line_of(text, "seed").map(|l| format!(" (line {l})")).unwrap_or_default();
-        bail!("{file}{line}: in {what}: train.seed is set per cell by grid.seeds; remove it and list the seeds there");
-    }
-    Ok(())
-}
-
-/// Turns merged sections into a validated cell configuration.
-fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<CellConfig> {
-    let mut config: CellConfig = toml::Value::Table(table.clone()).try_into().map_err(|e| {
-        let msg = e.message().to_string();
-        match offending_key(table) {
-            Some(key) => {
-                let line = line_of(text, &key).map(|l| format!(" (line {l})")).unwrap_or_default();
-                anyhow::anyhow!("{file}{line}: in {what}: `{key}`: {msg}")
-            }
-            None => located(e, file, what, text),
-        }
-    })?;
-    let check = |r: Result<()>| r.with_context(|| format!("{file}: in {what}"));
-    check(config.validate())?;
-    // Evaluation covers the collected tasks unless it names its own (which must have training data).
-    let eval_tasks_given = table.get("eval").and_then(|t| t.as_table()).is_some_and(|t| t.contains_key("tasks"));
-    if !eval_tasks_given {
-        config.eval.tasks = config.collect.tasks.clone();
-    } else if let Some(t) = config.eval.tasks.iter().find(|t| !config.collect.tasks.contains(t)) {
-        bail!("{file}: in {what}: eval.tasks contains task {t}, which collect.tasks does not collect");
-    }
-    check(config.eval.check_policy(&config.model, &config.world))?;
-    if let Some(path) = config.model.pretrained_backbone.as_ref().filter(|p| !Path::new(p).is_file()) {
-        bail!("{file}: in {what}: model.pretrained_backbone = {path:?}: no such file");
-    }
-    if config.pretrain.is_some() {
-        if config.model.pretrained_backbone.is_some() {
-            bail!(
-                "{file}: in {what}: [pretrain] and model.pretrained_backbone both give the trunk's starting weights; \
-                 keep one"
-            );
-        }
-        check(crate::train::check_pretrained_trunk(&config.model).context("[pretrain]"))?;
-    }
-    if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() && config.pretrain.is_none() {
-        bail!("{file}: in {what}: model.freeze_backbone = true needs model.pretrained_backbone or [pretrain]");
-    }
-    let t = &config.train;
-    for &step in &config.eval.checkpoints {
-        if step == 0 || step >= t.steps || (step % t.checkpoint_interval != 0) {
-            bail!(
-                "{file}: in {what}: eval.checkpoints contains {step}: checkpoints to evaluate must be multiples of \
-                 train.checkpoint_interval = {} below train.steps = {} (the final weights are always evaluated)",
-                t.checkpoint_interval,
-                t.steps
-            );
-        }
-    }
-    Ok(config)
-}
-
-/// The first `section.key` of `table` that does not deserialise on its own (a merged table has no positions
-/// left: this finds which key a type error is about).
-fn offending_key(table: &toml::Table) -> Option<String> {
-    table.iter().find_map(|(section, body)| {
-        let body = body.as_table()?;
-        body.iter().find_map(|(key, value)| {
-            let single = toml::Table::from_iter([(key.clone(), value.clone())]);
-            let one = toml::Table::from_iter([(section.clone(), toml::Value::Table(single))]);
-            toml::Value::Table(one).try_into::<CellConfig>().is_err().then(|| key.clone())
-        })
-    })
-}
-
 impl CellConfig {
-    /// Checks every section's ranges and that the training losses fit the architecture; errors name the key.
-    pub fn validate(&self) -> Result<()> {
-        self.world.validate()?;
-        self.collect.validate()?;
-        self.model.validate()?;
-        if let Some(p) = &self.pretrain {
-            p.validate()?;
-        }
-        self.train.validate()?;
-        self.eval.validate()?;
-        crate::train::config::check_heads(&self.model, &self.train)?;
-        crate::train::config::check_precision(&self.model, &self.train)
-    }
-
     /// Reads a file of sections (`[world]`, `[collect]`, `[model]`, `[train]`, `[eval]`; all optional, the
     /// paper's values by default), e.g. for `train --config`; errors name the file, the line and the key.
     pub fn load(path: &Path) -> Result<CellConfig> {
@@ -368,36 +194,10 @@ impl CellConfig {
     }
 }
 
-fn validate_grid(grid: &Grid, variants: &BTreeMap<String, toml::Table>, file: &str, text: &str) -> Result<()> {
-    let at = |key: &str| line_of(text, key).map(|l| format!(" (line {l})")).unwrap_or_default();
-    for v in &grid.variants {
-        if v != FULL && !variants.contains_key(v) {
-            let known: Vec<&str> = std::iter::once(FULL).chain(variants.keys().map(String::as_str)).collect();
-            bail!(
-                "{file}{}: grid.variants names `{v}`, which is not defined (defined: {})",
-                at("variants"),
-                known.join(", ")
-            );
-        }
-    }
-    for &n in &grid.sizes {
-        if n == 0 {
-            bail!("{file}{}: grid.sizes contains 0: sizes must be positive", at("sizes"));
-        }
-    }
-    if grid.sizes.is_empty() && grid.references.is_empty() {
-        bail!("{file}: the grid has no sizes and no references: nothing to run");
-    }
-    if !grid.sizes.is_empty() && (grid.variants.is_empty() || grid.seeds.is_empty()) {
-        bail!("{file}{}: grid.variants and grid.seeds must not be empty", at("grid"));
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::eval::localise::LocaliseTarget;
+    use crate::train::pretrain::LocaliseTarget;
 
     fn load(text: &str) -> Result<Experiment> {
         let dir = std::env::temp_dir().join(format!(

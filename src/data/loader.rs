@@ -3,6 +3,7 @@
 use super::augment::{AugmentDraw, Augmentation, DRAW_LEN};
 use super::device_augment::{augment_frames, bytes_to_device};
 use super::pairs::{FrameData, FrameForm, PairDataset, Sample, Split, Windows};
+use crate::model::batch::DeviceBatch;
 use crate::model::config::ModelConfig;
 use crate::seeds::derive_seed;
 use anyhow::Result;
@@ -30,16 +31,6 @@ pub enum BatchFrames {
     /// RGB bytes `[B, T, H, W, 3]` (pinned when bound for a GPU) and each frame's draw `[B * (Tc + Ta),
     /// DRAW_LEN]`, context frames of a sample first, for the device to augment.
     Raw { context: Tensor, agent: Tensor, draws: Tensor, jitter: bool },
-}
-
-/// A batch on a device: `context` `[B, Tc, 3, H, W]`, `agent` `[B, Ta, 3, H, W]`, `actions` `[B, Ta - 1, 8]`,
-/// `points` `[B, 2]`, `poses` `[B, 6]`.
-pub struct DeviceBatch {
-    pub context: Tensor,
-    pub agent: Tensor,
-    pub actions: Tensor,
-    pub points: Tensor,
-    pub poses: Tensor,
 }
 
 /// Where a batch's frames are augmented and normalised.

@@ -1,5 +1,5 @@
 //! `manifest.json`: what a collection holds, how it was made, and a blake3 digest of every file.
-use super::collect::CollectConfig;
+use super::collect_config::CollectConfig;
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::path::Path;

@@ -1,9 +1,9 @@
 //! Datasets: the trajectory file format, collection, and (for training) pair sampling and augmentation.
 pub mod augment;
 pub mod collect;
+pub mod collect_config;
 pub mod device_augment;
 pub mod loader;
 pub mod manifest;
 pub mod pairs;
-pub mod throughput;
 pub mod trajectory;

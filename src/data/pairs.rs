@@ -1,7 +1,7 @@
 //! Training pairs: a demonstrator video and an agent trajectory of the same task, in the same split.
 //! A sample is the video's context frames, a window of agent frames, its actions and the point target.
 use super::augment::{AugmentDraw, Augmentation};
-use super::collect::CollectConfig;
+use super::collect_config::CollectConfig;
 use super::manifest::{Manifest, ManifestEntry};
 use super::trajectory::Trajectory;
 use crate::model::config::{ContextMode, ModelConfig};
@@ -408,7 +408,7 @@ mod tests {
 
     #[test]
     fn validation_takes_the_last_tenth_of_slots_or_of_the_layout_pool() {
-        use crate::data::collect::LayoutSharing;
+        use crate::data::collect_config::LayoutSharing;
         let mut config = CollectConfig::paper(Robot::Panda);
         config.per_task = 20;
         config.settings.layouts = LayoutSharing::Unique;

@@ -34,13 +34,6 @@ pub enum Control {
     ScriptedPoses,
 }
 
-impl Control {
-    /// Whether this is the default (left out of stage keys).
-    pub fn is_policy(&self) -> bool {
-        *self == Control::Policy
-    }
-}
-
 /// How to evaluate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -64,8 +57,7 @@ pub struct EvalConfig {
     /// Episode indices to draw as PNG strips (context frames beside the agent's frames).
     pub strips: Vec<usize>,
     /// Episode indices to record as animated GIFs (the demonstration beside the rollout, with its stages); the
-    /// report links them. Left out of stage keys when empty.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    /// report links them.
     pub videos: Vec<usize>,
     /// How the agent's recent frames are kept (the authors clear them once `history_frames` are held).
     pub history: HistoryMode,
@@ -84,8 +76,6 @@ pub struct EvalConfig {
     /// each a multiple of `train.checkpoint_interval`). Read by experiment files.
     pub checkpoints: Vec<u64>,
     /// Who moves the agent: the network's actions, or the scripted expert executing its predicted positions.
-    /// Left out of stage keys when `policy`.
-    #[serde(skip_serializing_if = "Control::is_policy")]
     pub control: Control,
 }
 
@@ -190,6 +180,22 @@ mod tests {
     use super::*;
 
     #[test]
+    fn evaluation_layouts_avoid_every_shared_training_layout() {
+        use crate::data::collect_config::CollectConfig;
+        use crate::sim::robot::Robot;
+        let mut seeds = HashSet::new();
+        for robot in [Robot::Sawyer, Robot::Panda] {
+            let c = CollectConfig::paper(robot);
+            seeds.extend(
+                (0..16).flat_map(|t| (0..c.per_task).map(move |i| (t, i))).map(|(t, i)| c.instance_seed(t, i, 0)),
+            );
+        }
+        let eval = EvalConfig { episodes: 160, ..EvalConfig::default() };
+        let specs = eval.episode_specs(&seeds);
+        assert!(specs.iter().all(|e| !seeds.contains(&e.agent_seed) && !seeds.contains(&e.demo_seed)));
+    }
+
+    #[test]
     fn the_window_may_not_reach_untrained_positions() {
         let model = ModelConfig::default();
         let world = WorldConfig::default();
@@ -205,7 +211,7 @@ mod tests {
     }
 
     #[test]
-    fn scripted_control_needs_a_pose_head_and_stays_out_of_default_keys() {
+    fn scripted_control_needs_a_pose_head() {
         let scripted = EvalConfig { control: Control::ScriptedPoses, ..EvalConfig::default() };
         let world = WorldConfig::default();
         let err = scripted.check_policy(&ModelConfig::default(), &world).unwrap_err().to_string();
@@ -213,8 +219,5 @@ mod tests {
         let daml =
             ModelConfig { architecture: crate::model::config::Architecture::named("daml"), ..Default::default() };
         assert!(scripted.check_policy(&daml, &world).is_ok());
-        let default = serde_json::to_value(EvalConfig::default()).unwrap();
-        assert!(default.get("control").is_none(), "the default is left out of stage keys");
-        assert_eq!(serde_json::to_value(&scripted).unwrap()["control"], "scripted_poses");
     }
 }

@@ -8,7 +8,6 @@
 pub mod config;
 pub mod history;
 pub mod layouts;
-pub mod localise;
 pub mod policy;
 pub mod probe;
 pub mod rollout;

@@ -3,7 +3,7 @@
 use crate::data::loader::{AugmentAt, build_batch};
 use crate::data::pairs::{PairDataset, Split, Windows};
 use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
-use crate::sim::action::{ACTION_DIM, ACTION_RANGES};
+use crate::sim::action::ACTION_DIM;
 use crate::train::TrainedPolicy;
 use anyhow::{Result, bail};
 use tch::{Device, Kind, Tensor};
@@ -113,51 +113,4 @@ pub fn open_loop(
 fn pose_mae(pred: &Tensor, target: &Tensor) -> [f64; 6] {
     let e = (pred - target).abs().mean_dim([0i64].as_slice(), false, Kind::Double);
     std::array::from_fn(|d| e.double_value(&[d as i64]))
-}
-
-/// Prints the report with absolute units beside the normalised ones.
-pub fn print_probe(r: &ProbeReport) {
-    const NAMES: [&str; ACTION_DIM] = ["x", "y", "z", "angle/pi", "axis x", "axis y", "axis z", "gripper"];
-    println!("open-loop probe: {} windows, {} actions; mean absolute error (normalised units)", r.windows, r.actions);
-    println!(
-        "{:<9} {:>9} {:>9} {:>11} {:>16} {:>21}",
-        "dimension", "mode", "sample", "mean-only", "mode (absolute)", "mean-only (absolute)"
-    );
-    for d in 0..ACTION_DIM {
-        let half_range = (ACTION_RANGES[d][1] - ACTION_RANGES[d][0]) / 2.0;
-        let unit = if d < 3 { " m" } else { "" };
-        println!(
-            "{:<9} {:>9.3} {:>9.3} {:>11.3} {:>14.4}{unit} {:>19.4}{unit}",
-            NAMES[d],
-            r.mode[d],
-            r.sample[d],
-            r.mean_baseline[d],
-            r.mode[d] * half_range,
-            r.mean_baseline[d] * half_range
-        );
-    }
-    println!("by window position, mode / mean-only (absolute, m): position 0 sees one agent frame, so only there");
-    println!("must the object be found in the picture rather than in the arm's motion");
-    println!("{:<9} {:>17} {:>17} {:>17}", "position", "x", "y", "z");
-    for (i, p) in r.by_position.iter().enumerate() {
-        let cell = |d: usize| {
-            let half_range = (ACTION_RANGES[d][1] - ACTION_RANGES[d][0]) / 2.0;
-            format!("{:.4} / {:.4}", p.mode[d] * half_range, p.mean_baseline[d] * half_range)
-        };
-        println!("{:<9} {:>17} {:>17} {:>17}", i, cell(0), cell(1), cell(2));
-    }
-    if let Some((head, mean)) = r.poses_from_first_frame {
-        for (name, at) in [("grasp", 0), ("drop", 3)] {
-            println!(
-                "pose head, {name} position from the first agent frame, mean absolute error x / y / z (m): \
-                 {:.4} / {:.4} / {:.4} (mean {name} position: {:.4} / {:.4} / {:.4})",
-                head[at],
-                head[at + 1],
-                head[at + 2],
-                mean[at],
-                mean[at + 1],
-                mean[at + 2]
-            );
-        }
-    }
 }

@@ -45,17 +45,6 @@ pub fn percent(r: &Rate) -> String {
     format!("{:5.1}% [{:5.1}, {:5.1}]", 100.0 * r.value, 100.0 * r.low, 100.0 * r.high)
 }
 
-/// Prints the summary as a table.
-pub fn print_summary(s: &EvalSummary) {
-    println!("{} policy, {} episodes (95% Wilson intervals)", s.policy, s.episodes);
-    println!("{:>4}  {:<22} {:<22} {:<22}", "task", "reached", "picked", "placed");
-    for (t, r) in s.per_task.iter().enumerate().filter(|(_, r)| r.reached.n > 0) {
-        println!("{t:>4}  {:<22} {:<22} {:<22}", percent(&r.reached), percent(&r.picked), percent(&r.placed));
-    }
-    let o = &s.overall;
-    println!("{:>4}  {:<22} {:<22} {:<22}", "all", percent(&o.reached), percent(&o.picked), percent(&o.placed));
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

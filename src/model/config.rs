@@ -90,7 +90,6 @@ pub struct ModelConfig {
     pub pretrained_backbone: Option<String>,
     /// Keeps the pretrained trunk's weights fixed during training (its BatchNorm statistics still follow the
     /// data). A departure: the authors fine-tune the whole network (false).
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub freeze_backbone: bool,
     /// Attention layers over context + agent frames.
     pub attention_layers: usize,
@@ -132,7 +131,6 @@ pub struct ModelConfig {
     /// DAML's auxiliary head) regressed from [task, frame] at every agent frame, trained with weight
     /// `train.loss.pose`. It makes each frame's embedding locate the demonstrated object. A departure: the
     /// authors' transformer has no such head (false).
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub pose_head: bool,
 }
 

@@ -2,7 +2,7 @@
 //! action, inverse-dynamics and point heads that every architecture with the paper's losses ends in.
 use super::config::ModelConfig;
 use super::mixture::{MixtureHead, MixtureSpec};
-use super::policy::PolicyOutput;
+use super::output::{PointPrediction, PolicyOutput};
 use crate::sim::action::ACTION_RANGES;
 use tch::nn::{self, Module, ModuleT};
 use tch::{Kind, Tensor};
@@ -53,13 +53,6 @@ impl ModuleT for EmbeddingMlp {
         let norm = y.square().sum_dim_intlist([-1i64].as_slice(), true, Kind::Float).sqrt().clamp_min(1e-8);
         y / norm
     }
-}
-
-/// A 2-D Gaussian over the normalised image grid: mean `[B, 2]` and Cholesky factor entries `[B, 3]` (a, c, b
-/// of [[a, 0], [c, b]], with a, b > 0).
-pub struct PointPrediction {
-    pub mean: Tensor,
-    pub cholesky: Tensor,
 }
 
 /// Linear -> ReLU -> Linear 5 -> (mean, Cholesky with softplus + 0.03 diagonal).

@@ -2,23 +2,11 @@
 //! registry in [`super::architectures`].
 use super::architectures::Registration;
 use super::config::ModelConfig;
-use super::heads::{PointPrediction, point_nll};
+use super::heads::point_nll;
 use super::mixture::{MixtureParams, MixtureSpec, mixture_nll};
-use crate::data::loader::DeviceBatch;
+use super::output::PolicyOutput;
+use crate::model::batch::DeviceBatch;
 use tch::{Kind, Tensor, nn};
-
-/// What one forward pass predicts.
-pub struct PolicyOutput {
-    /// Action distribution at every agent frame: `[B, Ta, 8, mixtures]`.
-    pub actions: MixtureParams,
-    /// Inverse-dynamics distribution for each consecutive pair of agent frames: `[B, Ta - 1, 8, mixtures]`
-    /// (architectures without the head: none).
-    pub inverse: Option<MixtureParams>,
-    /// End-effector pixel at the end of the window (architectures without the head: none).
-    pub point: Option<PointPrediction>,
-    /// Grasp and drop positions `[B, Ta, 6]` (metres) at every agent frame (`model.pose_head`; otherwise none).
-    pub poses: Option<Tensor>,
-}
 
 /// The training losses of one batch; a loss whose head the architecture lacks is zero.
 pub struct Losses {

@@ -1,10 +1,12 @@
 //! The experiment orchestrator: the stage graph and its content keys, the stage kinds, the SQLite results store,
 //! and execution (locally or on Slurm) by the scheduler.
+pub mod events;
 pub mod executor;
 pub mod gc;
 pub mod graph;
 pub mod key;
 pub mod scheduler;
+pub mod selection;
 pub mod slurm;
 pub mod stages;
 pub mod store;

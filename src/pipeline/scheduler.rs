@@ -1,13 +1,14 @@
 //! Executes the missing stages of a plan: in dependency order, up to `jobs` at once, claiming each in the store so
 //! that concurrent runs never execute a stage twice; a failure stops only the stages below it.
+use super::events::{RunEvent, RunEvents};
 use super::executor::{Executor, Local};
-use super::graph::{Plan, Stage, short};
+use super::graph::Plan;
+use super::selection::{Labels, Pattern, display_name, forced, selected};
 use super::slurm::{Slurm, SlurmOptions, detached};
 use super::stages::StageOutputs;
-use super::store::jobs::SLURM_HOST;
-use super::store::{Claim, Holder, StageState, Store, now};
+use super::store::{Claim, StageState, Store};
 use anyhow::Result;
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, Sender, channel};
@@ -19,9 +20,9 @@ pub struct RunOptions {
     /// Stages executed at once.
     pub jobs: usize,
     /// Only cells whose `cell/kind` label matches (plus what they need).
-    pub only: Option<String>,
+    pub only: Option<Pattern>,
     /// Re-run matching stages (and everything below them) even if cached.
-    pub force: Option<String>,
+    pub force: Option<Pattern>,
     pub dry_run: bool,
     /// CUDA devices handed out one per network stage (`cuda:0`, ...); empty: the configuration decides.
     pub gpus: Vec<String>,
@@ -51,62 +52,6 @@ pub struct RunReport {
     pub queued: Vec<(String, u64)>,
 }
 
-/// `*` matches any run of characters; a pattern without `*` matches any label containing it.
-pub fn matches(pattern: &str, label: &str) -> bool {
-    if !pattern.contains('*') {
-        return label.contains(pattern);
-    }
-    let parts: Vec<&str> = pattern.split('*').collect();
-    let mut rest = label;
-    for (i, part) in parts.iter().enumerate() {
-        if i == 0 {
-            let Some(r) = rest.strip_prefix(part) else { return false };
-            rest = r;
-        } else if i == parts.len() - 1 {
-            return rest.ends_with(part);
-        } else {
-            let Some(pos) = rest.find(part) else { return false };
-            rest = &rest[pos + part.len()..];
-        }
-    }
-    rest.is_empty()
-}
-
-/// A readable name of a stage: its first label, the job's detail and the short key.
-pub fn display_name(stage: &Stage, labels: &BTreeMap<String, Vec<String>>) -> String {
-    let label = labels.get(&stage.key).and_then(|l| l.first()).cloned().unwrap_or_else(|| stage.kind().name().into());
-    let detail = stage.job.detail();
-    let detail = if detail.is_empty() { detail } else { format!(" {detail}") };
-    format!("{label}{detail} [{}]", short(&stage.key))
-}
-
-fn labelled(labels: &BTreeMap<String, Vec<String>>, key: &str, pattern: &str) -> bool {
-    labels.get(key).is_some_and(|ls| ls.iter().any(|l| matches(pattern, l)))
-}
-
-/// The keys to consider: the matching cells' stages and all they depend on, in plan order.
-fn selected(plan: &Plan, only: Option<&str>, labels: &BTreeMap<String, Vec<String>>) -> Vec<String> {
-    let Some(p) = only else { return plan.order.clone() };
-    let mut want: HashSet<String> = plan.order.iter().filter(|k| labelled(labels, k, p)).cloned().collect();
-    for k in plan.order.iter().rev() {
-        if want.contains(k) {
-            want.extend(plan.stages[k].upstream.iter().cloned());
-        }
-    }
-    plan.order.iter().filter(|k| want.contains(*k)).cloned().collect()
-}
-
-/// The stages `--force` re-runs: the matching ones and everything below them.
-fn forced(
-    plan: &Plan,
-    keys: &[String],
-    force: Option<&str>,
-    labels: &BTreeMap<String, Vec<String>>,
-) -> HashSet<String> {
-    let Some(p) = force else { return HashSet::new() };
-    keys.iter().filter(|k| labelled(labels, k, p)).flat_map(|k| plan.downstream(k)).collect()
-}
-
 #[derive(Debug, Clone, PartialEq)]
 enum Status {
     Pending,
@@ -122,7 +67,8 @@ type Finished = (String, i64, Option<String>, Result<(PathBuf, StageOutputs)>);
 struct Scheduler<'a> {
     plan: &'a Plan,
     store: Store,
-    labels: BTreeMap<String, Vec<String>>,
+    events: &'a dyn RunEvents,
+    labels: Labels,
     keys: Vec<String>,
     forced: HashSet<String>,
     status: HashMap<String, Status>,
@@ -139,21 +85,6 @@ struct Scheduler<'a> {
     rx: Receiver<Finished>,
     /// Stages held by another process whose wait was already announced.
     announced_waits: HashSet<String>,
-}
-
-/// What a run says when a stage it needs is being run by another process or a Slurm job.
-fn waiting_message(stage: &str, holder: &Holder) -> String {
-    let since = (now() - holder.started_at).max(0.0);
-    if holder.host == SLURM_HOST {
-        return format!(
-            "waiting: {stage} is Slurm job {} (submitted {since:.0} s ago); this run goes on when it ends",
-            holder.pid
-        );
-    }
-    format!(
-        "waiting: {stage} is being run by pid {} on {} (started {since:.0} s ago); this run goes on when it ends",
-        holder.pid, holder.host
-    )
 }
 
 impl Scheduler<'_> {
@@ -206,7 +137,7 @@ impl Scheduler<'_> {
                     waiting_on_others = true;
                     self.free_gpus.extend(gpu);
                     if self.announced_waits.insert(k.clone()) {
-                        eprintln!("{}", waiting_message(&display_name(stage, &self.labels), &holder));
+                        self.events.report(RunEvent::Waiting { stage: display_name(stage, &self.labels), holder });
                     }
                 }
                 Claim::Acquired(attempt) => self.launch(&k, attempt, gpu),
@@ -219,13 +150,12 @@ impl Scheduler<'_> {
     fn launch(&mut self, key: &str, attempt: i64, gpu: Option<String>) {
         let stage = self.plan.stages[key].clone();
         self.started += 1;
-        eprintln!(
-            "[{}/{}] {} {} ...",
-            self.started,
-            self.total,
-            stage.kind().name(),
-            display_name(&stage, &self.labels)
-        );
+        self.events.report(RunEvent::Started {
+            number: self.started,
+            total: self.total,
+            kind: stage.kind().name(),
+            stage: display_name(&stage, &self.labels),
+        });
         let upstream: HashMap<String, PathBuf> = stage
             .upstream
             .iter()
@@ -251,14 +181,14 @@ impl Scheduler<'_> {
         match result {
             Ok((artifact, outputs)) => {
                 self.store.complete(&key, attempt, &artifact, &outputs)?;
-                eprintln!("    done: {name} ({:.0} s into the run)", self.clock.elapsed().as_secs_f64());
+                self.events.report(RunEvent::Done { stage: name, seconds: self.clock.elapsed().as_secs_f64() });
                 self.status.insert(key.clone(), Status::Done(artifact));
                 self.report.executed.push(key);
             }
             Err(e) => {
                 let msg = format!("{e:#}");
                 self.store.fail(&key, attempt, &msg)?;
-                eprintln!("    FAILED: {name}: {msg}");
+                self.events.report(RunEvent::Failed { stage: name, message: msg.clone() });
                 self.status.insert(key.clone(), Status::Failed);
                 self.report.failed.push((key, msg));
             }
@@ -272,23 +202,23 @@ const SLURM_POLL: Duration = Duration::from_secs(15);
 
 /// Records what Slurm jobs of earlier detached runs did; without a reachable Slurm it says so and goes on (their
 /// stages stay held until a run that can see the queue catches up).
-fn catch_up_with_slurm(store: &mut Store, root: &Path) {
+fn catch_up_with_slurm(store: &mut Store, root: &Path, events: &dyn RunEvents) {
     match detached::catch_up(store, root) {
         Ok(c) => {
-            for (key, why) in &c.failed {
-                eprintln!("Slurm job of stage {} failed: {why}", short(key));
+            for (key, why) in c.failed {
+                events.report(RunEvent::SlurmJobFailed { key, why });
             }
         }
-        Err(e) => eprintln!("warning: could not catch up with Slurm jobs: {e:#}"),
+        Err(e) => events.report(RunEvent::Warning(format!("could not catch up with Slurm jobs: {e:#}"))),
     }
 }
 
-/// Runs what is missing of `plan` against the store at `root`.
-pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
+/// Runs what is missing of `plan` against the store at `root`, telling `events` what happens.
+pub fn run(plan: &Plan, root: &Path, opts: &RunOptions, events: &dyn RunEvents) -> Result<RunReport> {
     let mut store = Store::open(root)?;
     let labels = plan.labels();
-    let keys = selected(plan, opts.only.as_deref(), &labels);
-    let forced = forced(plan, &keys, opts.force.as_deref(), &labels);
+    let keys = selected(plan, opts.only.as_ref(), &labels);
+    let forced = forced(plan, &keys, opts.force.as_ref(), &labels);
     store.register(&keys.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     if let (Some(slurm), true, false) = (&opts.slurm, opts.detach, opts.dry_run) {
         let s = detached::submit(plan, &mut store, root, slurm, opts.workers.max(1), &keys, &forced)?;
@@ -301,7 +231,7 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
             ..RunReport::default()
         });
     }
-    catch_up_with_slurm(&mut store, root);
+    catch_up_with_slurm(&mut store, root, events);
     let jobs = opts.jobs.max(1);
     let executor: Arc<dyn Executor> = match &opts.slurm {
         Some(s) => Arc::new(Slurm { options: s.clone(), root: root.to_path_buf(), workers: opts.workers.max(1) }),
@@ -315,6 +245,7 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
     let mut s = Scheduler {
         plan,
         store,
+        events,
         labels,
         keys,
         forced,
@@ -356,38 +287,9 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions) -> Result<RunReport> {
             s.finish(finished)?;
         }
         if waiting_on_others && last_catch_up.elapsed() > SLURM_POLL {
-            catch_up_with_slurm(&mut s.store, root);
+            catch_up_with_slurm(&mut s.store, root, events);
             last_catch_up = Instant::now();
         }
     }
     Ok(s.report)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::matches;
-
-    #[test]
-    fn the_waiting_message_names_the_stage_the_process_and_how_long() {
-        let holder = super::Holder { host: "node7".into(), pid: 4242, started_at: super::now() - 90.0 };
-        let m = super::waiting_message("n32-full-s0/train", &holder);
-        assert!(m.starts_with("waiting: n32-full-s0/train is being run by pid 4242 on node7"), "{m}");
-        assert!(m.contains("(started 90 s ago)") || m.contains("(started 91 s ago)"), "{m}");
-    }
-
-    #[test]
-    fn the_waiting_message_names_a_slurm_job_by_its_id() {
-        let holder = super::Holder { host: super::SLURM_HOST.into(), pid: 812, started_at: super::now() - 30.0 };
-        let m = super::waiting_message("n32-full-s0/eval", &holder);
-        assert!(m.starts_with("waiting: n32-full-s0/eval is Slurm job 812 (submitted 3"), "{m}");
-    }
-
-    #[test]
-    fn patterns_match_substrings_and_globs() {
-        assert!(matches("n480", "n480-full-s0/train"));
-        assert!(matches("n480-*-s1/eval", "n480-no_point-s1/eval"));
-        assert!(!matches("n480-*-s1/eval", "n480-no_point-s0/eval"));
-        assert!(matches("*/eval", "expert/eval"));
-        assert!(!matches("*/train", "expert/eval"));
-    }
 }

@@ -7,12 +7,22 @@
 //! frames are the scene upright, and the policy sees the camera's top 140 of 320 rows: the two bins and the space
 //! above them. Here the same region is rendered directly at the training size through the camera's intrinsics
 //! (stretched vertically by 240/140 like the authors' resize), then turned by 180 degrees.
-use super::scene::Visuals;
 use anyhow::{Result, anyhow, bail};
 use mujoco_rs::prelude::*;
 use mujoco_rs::renderer::MjRenderer;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
+
+/// Which geometry the camera sees.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Visuals {
+    /// The robots' visual meshes (what the paper filmed).
+    #[default]
+    Full,
+    /// Collision geometry only: ~10x faster to render on CPU.
+    Collision,
+}
 
 /// Position of the authors' `frontview` camera.
 pub const CAMERA_POS: [f64; 3] = [1.6, 0.1, 1.75];

@@ -1,13 +1,14 @@
 //! One robot in the bins scene: reset to a task instance, step with end-effector actions (IK + PD with
 //! gravity compensation), observe, render and track staged success.
 use super::action::Action;
+use super::camera::Visuals;
 use super::camera::{Camera, ImageSize, project};
 use super::ids::SceneIds;
 use super::ik::IkSolver;
 use super::milestones::{MilestoneInputs, Milestones};
 use super::robot::Robot;
 use super::rotation::{downward, from_angle_axis, mat_from_mj, to_angle_axis, yaw_of};
-use super::scene::{Visuals, build_model};
+use super::scene::build_model;
 use super::task::{Instance, NUM_OBJECTS, in_quadrant};
 use anyhow::{Result, bail};
 use mujoco_rs::prelude::*;
@@ -55,8 +56,7 @@ pub struct WorldConfig {
     /// When the experts close the gripper during the descent: `false` at the descent's 8th step, as the authors'
     /// expert times it; `true` as soon as the grip site is within 1 cm of the grasp point (8 steps at the
     /// latest), so that the gripper does not wait, motionless, at the bottom: from a few recent frames a policy
-    /// cannot tell that wait from the closing it must follow with a rise. Left out of stage keys when `false`.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    /// cannot tell that wait from the closing it must follow with a rise.
     pub close_on_arrival: bool,
 }
 

@@ -16,17 +16,6 @@ pub const ROBOT_PREFIX: &str = "robot0_";
 /// Prefix of every element of the gripper inside the robot.
 pub const GRIPPER_PREFIX: &str = "gripper0_";
 
-/// Which geometry the camera sees.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum Visuals {
-    /// The robots' visual meshes (what the paper filmed).
-    #[default]
-    Full,
-    /// Collision geometry only: ~10x faster to render on CPU.
-    Collision,
-}
-
 /// Name of the free body holding object `i`.
 pub fn object_body_name(obj: Object) -> String {
     format!("obj_{}", obj.name())

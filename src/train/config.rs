@@ -16,20 +16,11 @@ pub struct LossWeights {
     pub point: f64,
     /// Grasp-and-drop position regression (metres squared): DAML's auxiliary loss, which the authors add
     /// unweighted (1), and `model.pose_head`'s.
-    #[serde(skip_serializing_if = "is_one")]
     pub pose: f64,
-}
-
-fn is_one(w: &f64) -> bool {
-    *w == 1.0
 }
 
 /// The authors' probability that a training window starts at its trajectory's first frame.
 pub const AUTHORS_WINDOW_START: f64 = 0.2;
-
-fn is_authors_window_start(p: &f64) -> bool {
-    *p == AUTHORS_WINDOW_START
-}
 
 impl TrainConfig {
     /// Where training windows are drawn.
@@ -86,13 +77,6 @@ pub enum AugmentOn {
     Device,
 }
 
-impl AugmentOn {
-    /// Whether this is the default (then it is left out of serialised configurations).
-    pub fn is_host(&self) -> bool {
-        *self == AugmentOn::Host
-    }
-}
-
 /// The number type of the forward pass.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -105,11 +89,6 @@ pub enum Precision {
 }
 
 impl Precision {
-    /// Whether this is fp32 (then it is left out of stage keys, which predate the option).
-    pub fn is_fp32(&self) -> bool {
-        *self == Precision::Fp32
-    }
-
     /// The autocast scope this precision needs on `device`, if any.
     pub fn scope(self, device: Device) -> Option<crate::autocast::Autocast> {
         (self == Precision::Bf16).then(|| crate::autocast::Autocast::bf16(device))
@@ -132,10 +111,8 @@ pub struct TrainConfig {
     /// Layout of the trunk's image tensors (an execution detail like `device`: not part of a stage's key).
     pub memory_format: MemoryFormat,
     /// Where frames are augmented (an execution detail like `device`: not part of a stage's key).
-    #[serde(skip_serializing_if = "AugmentOn::is_host")]
     pub augment_on: AugmentOn,
     /// Number type of the forward pass (changes results slightly, so it is part of a stage's key unless fp32).
-    #[serde(skip_serializing_if = "Precision::is_fp32")]
     pub precision: Precision,
     /// Steps between validation passes (and loss-curve points).
     pub val_interval: u64,
@@ -152,7 +129,6 @@ pub struct TrainConfig {
     pub loss: LossWeights,
     /// Probability that a training window starts at its trajectory's first frame, where only the picture says
     /// where the object is (the authors' 0.2; each window also ends the trajectory with probability 0.2).
-    #[serde(skip_serializing_if = "is_authors_window_start")]
     pub window_start: f64,
     /// Batches prepared ahead of the training step on a background thread; 0 prepares each when it is needed
     /// (faster where the cores are few: the two do not compete).

@@ -4,9 +4,12 @@ pub mod adam;
 pub mod checkpoint;
 pub mod config;
 pub mod curve;
+pub mod pretrain;
+pub mod throughput;
 
-use crate::data::loader::{AugmentAt, Batch, DeviceBatch, PrefetchSpec, Prefetcher, build_batch};
+use crate::data::loader::{AugmentAt, Batch, PrefetchSpec, Prefetcher, build_batch};
 use crate::data::pairs::{PairDataset, Split};
+use crate::model::batch::DeviceBatch;
 use crate::model::config::ModelConfig;
 use crate::model::policy::{Losses, Policy};
 use crate::seeds::derive_seed;

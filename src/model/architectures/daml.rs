@@ -7,11 +7,12 @@
 //! is trained through that step (second order) on behaviour cloning plus the grasp-and-drop regression.
 //! `daml_resnet` is the same with the authors' ResNet-18 trunk option (`n_final_convs = "resnet"`).
 use super::Registration;
-use super::daml_trunk::{self, Trunk, TrunkKind};
-use crate::data::loader::DeviceBatch;
+use super::daml_trunk::{self, Trunk, TrunkKind, bias};
+use crate::model::batch::DeviceBatch;
 use crate::model::config::ModelConfig;
 use crate::model::mixture::{MixtureHead, MixtureParams, MixtureSpec, mixture_nll};
-use crate::model::policy::{Losses, PolicyNet, PolicyOutput};
+use crate::model::output::PolicyOutput;
+use crate::model::policy::{Losses, PolicyNet};
 use tch::nn::{self, Module};
 use tch::{Kind, Reduction, Tensor};
 
@@ -23,7 +24,7 @@ pub const DAML: Registration = Registration {
     pose_head: true,
     optional_pose_head: false,
     // Its inner gradient step carries bf16 rounding into the adapted weights: the outer gradient turns away from
-    // fp32's (tests/precision.rs measured a cosine of 0.4).
+    // fp32's (tests/it/precision.rs measured a cosine of 0.4).
     bf16: false,
     build: |vs, config| Box::new(Daml::new(vs, config, TrunkKind::Conv)),
 };
@@ -176,11 +177,6 @@ impl Daml {
         let poses = self.pose[1].forward(&self.pose[0].forward(&first).relu());
         (actions, poses)
     }
-}
-
-/// A layer's bias (every layer here has one).
-pub(super) fn bias(b: &Option<Tensor>) -> Tensor {
-    b.as_ref().expect("layers are built with a bias").shallow_clone()
 }
 
 impl PolicyNet for Daml {

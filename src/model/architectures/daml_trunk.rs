@@ -200,7 +200,7 @@ impl Trunk {
                 let mut p = stem.0.params();
                 p.extend(stem.1.params());
                 p.extend(blocks.iter().flat_map(Block::params));
-                p.extend(embed.iter().flat_map(|l| [l.ws.shallow_clone(), super::daml::bias(&l.bs)]));
+                p.extend(embed.iter().flat_map(|l| [l.ws.shallow_clone(), bias(&l.bs)]));
                 p
             }
         }
@@ -254,4 +254,9 @@ pub fn linear(weights: &mut Iter<Tensor>, x: &Tensor) -> Tensor {
 
 fn next<'a>(weights: &mut Iter<'a, Tensor>) -> &'a Tensor {
     weights.next().expect("one weight per parameter of the trunk")
+}
+
+/// A layer's bias (every layer here has one).
+pub(super) fn bias(b: &Option<Tensor>) -> Tensor {
+    b.as_ref().expect("layers are built with a bias").shallow_clone()
 }

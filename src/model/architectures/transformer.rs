@@ -6,7 +6,8 @@ use crate::model::attention::{
 };
 use crate::model::config::{ContextAttention, ModelConfig, TaskPass};
 use crate::model::heads::{EmbeddingMlp, PolicyHeads, spatial_softmax};
-use crate::model::policy::{PolicyNet, PolicyOutput};
+use crate::model::output::PolicyOutput;
+use crate::model::policy::PolicyNet;
 use crate::model::resnet::ResNet18;
 use tch::Tensor;
 use tch::nn::{self, ModuleT};

@@ -1,8 +1,10 @@
 //! The collect stage: expert trajectories of one robot.
 use super::{MetricName, RunContext, StageOutputs, Upstream};
 use crate::config::CellConfig;
-use crate::data::collect::{CollectConfig, collect_into};
+use crate::data::collect::collect_into;
+use crate::data::collect_config::CollectConfig;
 use crate::pipeline::graph::Plan;
+use crate::pipeline::key::omit_when;
 use crate::sim::robot::Robot;
 use anyhow::Result;
 use std::path::Path;
@@ -16,8 +18,14 @@ pub type CollectJob = CollectConfig;
 /// Adds the collection of `per_task` trajectories per task by `robot` for a cell; returns its key.
 pub fn add(plan: &mut Plan, robot: Robot, per_task: usize, cell: &CellConfig) -> String {
     let job = CollectConfig { robot, per_task, world: cell.world.clone(), settings: cell.collect.clone() };
-    let inputs = serde_json::to_value(&job).expect("configurations serialise");
-    plan.add(inputs, Vec::new(), super::Job::Collect(job))
+    plan.add(key_inputs(&job), Vec::new(), super::Job::Collect(job))
+}
+
+/// What a collection's key is made of: the whole configuration, less the world's neutral settings.
+fn key_inputs(job: &CollectJob) -> serde_json::Value {
+    let mut inputs = serde_json::to_value(job).expect("configurations serialise");
+    omit_when(&mut inputs, &[super::neutral_world()]);
+    inputs
 }
 
 /// Collects into `staging`.

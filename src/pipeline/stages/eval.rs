@@ -6,8 +6,10 @@ use crate::eval::layouts::{Layouts, training_seeds};
 use crate::eval::run::run_eval;
 use crate::eval::{EvalConfig, Policy, Weights};
 use crate::pipeline::graph::Plan;
+use crate::pipeline::key::omit_when;
 use crate::sim::env::WorldConfig;
 use anyhow::Result;
+use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 
 /// Implementation version of evaluation (part of every eval key).
@@ -36,10 +38,18 @@ fn identity(e: &EvalConfig) -> EvalConfig {
     EvalConfig { device: "auto".into(), checkpoints: Vec::new(), ..e.clone() }
 }
 
+/// What an evaluation's key is made of besides its upstream stages: the world, the evaluation settings that
+/// change results and who acts, less the settings added after keys existed at their earlier value.
+fn key_inputs(world: &WorldConfig, eval: &EvalConfig, policy: &str) -> Value {
+    let mut inputs = json!({ "world": world, "eval": identity(eval), "policy": policy });
+    omit_when(&mut inputs, &[super::neutral_world(), ("eval.videos", json!([])), ("eval.control", json!("policy"))]);
+    inputs
+}
+
 /// Adds the evaluation of training `train`'s final weights (`step` none) or checkpoint at `step`, avoiding the
 /// layouts of the collections `data`; returns its key.
 pub fn add_trained(plan: &mut Plan, cell: &CellConfig, train: &str, step: Option<u64>, data: &[String]) -> String {
-    let mut inputs = serde_json::json!({ "world": cell.world, "eval": identity(&cell.eval), "policy": "trained" });
+    let mut inputs = key_inputs(&cell.world, &cell.eval, "trained");
     if let Some(s) = step {
         inputs["checkpoint"] = s.into();
     }
@@ -55,7 +65,7 @@ pub fn add_trained(plan: &mut Plan, cell: &CellConfig, train: &str, step: Option
 
 /// Adds the evaluation of reference policy `r` in the experiment's base configuration; returns its key.
 pub fn add_reference(plan: &mut Plan, base: &CellConfig, r: Reference) -> String {
-    let inputs = serde_json::json!({ "world": base.world, "eval": identity(&base.eval), "policy": r.name() });
+    let inputs = key_inputs(&base.world, &base.eval, r.name());
     let job = EvalJob { policy: r.into(), world: base.world.clone(), eval: base.eval.clone(), exclude: Vec::new() };
     plan.add(inputs, Vec::new(), super::Job::Eval(job))
 }

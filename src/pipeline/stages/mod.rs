@@ -17,6 +17,11 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+/// The world's settings that keys leave out at their first value (added after keys existed).
+fn neutral_world() -> (&'static str, serde_json::Value) {
+    ("world.close_on_arrival", serde_json::Value::Bool(false))
+}
+
 /// The kinds of cached stages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

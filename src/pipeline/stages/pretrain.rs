@@ -2,8 +2,9 @@
 //! (the localisation check's regression), saved for the train stage to start from.
 use super::{MetricName, RunContext, StageOutputs, Upstream};
 use crate::config::CellConfig;
-use crate::eval::localise::{PretrainConfig, localise};
 use crate::pipeline::graph::Plan;
+use crate::pipeline::key::omit_when;
+use crate::train::pretrain::{PretrainConfig, localise};
 use anyhow::Result;
 use std::path::{Path, PathBuf};
 
@@ -47,6 +48,8 @@ pub fn add(plan: &mut Plan, cell: &CellConfig, agents: &str, per_task: Option<us
         "backbone_stages": job.backbone_stages,
         "seed": job.seed,
     });
+    // Frames not augmented: the key as before the setting existed.
+    omit_when(&mut inputs, &[("pretrain.augmentation", serde_json::Value::Null)]);
     if let Some(n) = per_task {
         inputs["per_task"] = n.into();
     }
@@ -61,7 +64,7 @@ pub fn trunk_of(upstream: &Upstream, key: &str) -> Result<PathBuf> {
 /// Trains the trunk into `staging`; reports its held-out errors beside the mean's.
 pub fn run(job: &PretrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
     let trunk = (job.backbone_width, job.backbone_stages);
-    let config = job.pretrain.localise(trunk, job.per_task, job.seed, staging.join(TRUNK_FILE));
+    let config = job.pretrain.localise(trunk, job.per_task, job.seed, Some(staging.join(TRUNK_FILE)));
     let device = crate::device::parse_device(&ctx.device_or(&job.device))?;
     let report = localise(upstream.get(&job.agents)?, &config, device)?;
     let last = report.curve.last().expect("the check measures at its last step");

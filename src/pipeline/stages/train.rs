@@ -3,9 +3,11 @@ use super::{MetricName, RunContext, StageOutputs, Upstream};
 use crate::config::CellConfig;
 use crate::model::config::ModelConfig;
 use crate::pipeline::graph::Plan;
-use crate::train::config::TrainConfig;
+use crate::pipeline::key::omit_when;
+use crate::train::config::{AUTHORS_WINDOW_START, TrainConfig};
 use crate::train::{CURVE_FILE, TrainRun, curve, train};
 use anyhow::Result;
+use serde_json::{Value, json};
 use std::path::Path;
 
 /// Implementation version of training (part of every train key).
@@ -36,6 +38,26 @@ fn identity(t: &TrainConfig) -> TrainConfig {
     }
 }
 
+/// Settings added after train keys existed, left out of them at their earlier value.
+fn neutral() -> [(&'static str, Value); 6] {
+    [
+        ("model.freeze_backbone", json!(false)),
+        ("model.pose_head", json!(false)),
+        ("train.loss.pose", json!(1.0)),
+        ("train.augment_on", json!("host")),
+        ("train.precision", json!("fp32")),
+        ("train.window_start", json!(AUTHORS_WINDOW_START)),
+    ]
+}
+
+/// What a training's key is made of besides its upstream stages: the model and the training settings that
+/// change results.
+fn key_inputs(cell: &CellConfig) -> Value {
+    let mut inputs = json!({ "model": cell.model, "train": identity(&cell.train) });
+    omit_when(&mut inputs, &neutral());
+    inputs
+}
+
 /// Adds a cell's training on the collections `demos` and `agents` (their first `per_task` slots of each task, if
 /// given: then the key says so), starting from the trunk of pretrain stage `trunk` if given (an upstream of the
 /// key); returns its key.
@@ -47,7 +69,7 @@ pub fn add(
     per_task: Option<usize>,
     trunk: Option<&str>,
 ) -> String {
-    let mut inputs = serde_json::json!({ "model": cell.model, "train": identity(&cell.train) });
+    let mut inputs = key_inputs(cell);
     if let Some(n) = per_task {
         inputs["per_task"] = n.into();
     }

@@ -1,9 +1,5 @@
 //! The command line's handling of bad input: one clear error line and a non-zero exit.
-use std::process::Command;
-
-fn oneshot() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_oneshot-lab"))
-}
+use crate::helpers::oneshot;
 
 #[test]
 fn unknown_robot_is_an_error_naming_it() {
@@ -78,7 +74,7 @@ fn commands_that_read_a_store_refuse_a_folder_without_one() {
 
 #[test]
 fn an_unknown_architecture_to_benchmark_is_an_error_naming_it() {
-    let out = oneshot().args(["bench-train", "--architectures", "transfomer", "--device", "cpu"]).output().unwrap();
+    let out = oneshot().args(["bench", "train", "--architectures", "transfomer", "--device", "cpu"]).output().unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--architectures") && err.contains("transfomer"), "{err}");

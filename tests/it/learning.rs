@@ -1,6 +1,8 @@
 //! The chain learns: a handful of collected trajectories, a short training run, and in closed loop the policy
 //! goes to the demonstrated object on its training layouts, which a random policy rarely does.
-use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
+use crate::helpers::torch_rng;
+use oneshot_lab::data::collect::collect;
+use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
 use oneshot_lab::data::manifest::Manifest;
 use oneshot_lab::eval::layouts::Layouts;
 use oneshot_lab::eval::run::run_eval;
@@ -8,14 +10,15 @@ use oneshot_lab::eval::{ActionChoice, EpisodeResult, EvalConfig};
 use oneshot_lab::eval::{Policy, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::camera::Visuals;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
-use oneshot_lab::sim::scene::Visuals;
 use oneshot_lab::train::config::{LrSchedule, MemoryFormat, TrainConfig};
 use oneshot_lab::train::{TrainRun, train};
 
 #[test]
 fn a_briefly_trained_policy_goes_to_the_demonstrated_object_in_closed_loop() {
+    let _rng = torch_rng();
     let dir = std::env::temp_dir().join(format!("oneshot-test-learning-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let world = WorldConfig {

@@ -1,4 +1,5 @@
-//! The localisation check: can the policy's image trunk find the object at all at a given frame size? A ResNet-18
+//! Trunk pretraining, and the localisation check it is made of: can the policy's image trunk find the object at
+//! all at a given frame size? A ResNet-18
 //! trunk (the policy's widths), spatial softmax and a small MLP are trained to regress positions from each agent
 //! trajectory's first frame, where the arm is still at its start pose and only the picture says where the objects
 //! lie, and scored on held-out layouts against predicting the mean. Two targets separate two skills: the grasp
@@ -62,12 +63,11 @@ pub struct PretrainConfig {
     pub batch: i64,
     pub lr: f64,
     /// Training frames are augmented with these ranges; absent, not at all.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub augmentation: Option<Augmentation>,
 }
 
 impl Default for PretrainConfig {
-    /// The settings of `localise --target objects --steps 2000` (the trunk of the README's learning recipe).
+    /// The trunk of the README's learning recipe; the `localise` command's defaults too.
     fn default() -> Self {
         PretrainConfig { target: LocaliseTarget::Objects, steps: 2000, batch: 32, lr: 1e-3, augmentation: None }
     }
@@ -86,14 +86,14 @@ impl PretrainConfig {
     }
 
     /// The check's settings for a trunk of `backbone_width` and `backbone_stages` on the first `per_task` slots
-    /// of each task (none: all), seeded by `seed`, saved to `trunk_out` (a fifth of the layouts held out, errors
+    /// of each task (none: all), seeded by `seed`, saved to `trunk_out` if given (a fifth of the layouts held out, errors
     /// measured ten times).
     pub fn localise(
         &self,
         (backbone_width, backbone_stages): (i64, usize),
         per_task: Option<usize>,
         seed: u64,
-        trunk_out: PathBuf,
+        trunk_out: Option<PathBuf>,
     ) -> LocaliseConfig {
         LocaliseConfig {
             backbone_width,
@@ -107,7 +107,7 @@ impl PretrainConfig {
             seed,
             target: self.target,
             augmentation: self.augmentation.clone(),
-            trunk_out: Some(trunk_out),
+            trunk_out,
         }
     }
 }
@@ -202,7 +202,7 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
     }
     let every = config.hold_out_every;
     // Held out by layout: a shared layout's trajectories under other tasks are held out with it.
-    let held = |i: usize, e: &ManifestEntry| e.environment.map_or(i as u64, |env| env) % every as u64 == 0;
+    let held = |i: usize, e: &ManifestEntry| e.environment.unwrap_or(i as u64).is_multiple_of(every as u64);
     let (train, height, width) = first_frames(dir, config.target, config.per_task, |i, e| !held(i, e))?;
     let (held_out, _, _) = first_frames(dir, config.target, config.per_task, held)?;
     // The targets are standardised by the training frames' statistics, as a regression head would want.

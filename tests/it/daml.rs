@@ -1,7 +1,8 @@
 //! DAML's meta-learning: the inner step on the learned loss, and the second-order outer gradient.
-use oneshot_lab::data::loader::DeviceBatch;
+use crate::helpers::seeded;
 use oneshot_lab::model::architectures::daml::Daml;
 use oneshot_lab::model::architectures::daml_trunk::TrunkKind;
+use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::mixture::MixtureSpec;
 use oneshot_lab::model::policy::PolicyNet;
@@ -54,7 +55,7 @@ fn the_inner_step_adapts_every_trunk_and_action_weight_per_task() {
 }
 
 fn inner_step_adapts_every_weight(trunk: TrunkKind) {
-    tch::manual_seed(0);
+    let _rng = seeded(0);
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &tiny(), trunk);
     let context = Tensor::randn([2, 4, 3, 32, 40], (Kind::Float, Device::Cpu));
@@ -80,7 +81,7 @@ fn a_task_acts_the_same_alone_and_beside_another_task() {
 }
 
 fn tasks_are_independent(trunk: TrunkKind) {
-    tch::manual_seed(3);
+    let _rng = seeded(3);
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &tiny(), trunk);
     let b = batch();
@@ -103,7 +104,7 @@ fn the_outer_gradient_reaches_the_learned_loss_only_through_the_second_order_ste
 }
 
 fn outer_gradient_is_second_order(trunk: TrunkKind, adapted: &str) {
-    tch::manual_seed(1);
+    let _rng = seeded(1);
     let config = tiny();
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &config, trunk);
@@ -135,7 +136,7 @@ fn predicted_poses_come_from_the_first_agent_frame() {
 }
 
 fn poses_from_first_frame(trunk: TrunkKind) {
-    tch::manual_seed(2);
+    let _rng = seeded(2);
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &tiny(), trunk);
     let b = batch();
@@ -152,7 +153,7 @@ fn poses_from_first_frame(trunk: TrunkKind) {
 
 #[test]
 fn the_resnet_trunk_updates_its_batch_norm_statistics_in_training_only() {
-    tch::manual_seed(4);
+    let _rng = seeded(4);
     let config = tiny();
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &config, TrunkKind::ResNet);

@@ -1,18 +1,8 @@
 //! The orchestrator against real (tiny) stages: caching, selective re-runs, interruption, concurrency, reports.
+use crate::helpers::{oneshot, scratch};
 use rusqlite::Connection;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn oneshot() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_oneshot-lab"))
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("oneshot-test-pipeline-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use std::process::Output;
 
 /// A tiny experiment: task 0 only, 32x40 frames, a narrow network, a few steps, two short episodes.
 fn experiment(seeds: &str, jpeg_quality: u8, steps: u32) -> String {
@@ -75,7 +65,7 @@ fn count(conn: &Connection, sql: &str) -> i64 {
 
 #[test]
 fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
-    let dir = scratch("incremental");
+    let dir = scratch("pipeline-incremental");
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, experiment("[0]", 90, 4)).unwrap();
     // collect x2, train x2, eval x2, random eval.
@@ -193,7 +183,7 @@ fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
 
 #[test]
 fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
-    let dir = scratch("kill");
+    let dir = scratch("pipeline-kill");
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, experiment("[0]", 90, 400)).unwrap();
     let mut child = oneshot()
@@ -284,7 +274,7 @@ fn pretrained_experiment(seeds: &str, pretrain_steps: u32) -> String {
 
 #[test]
 fn a_pretrain_section_trains_the_trunk_once_per_seed_and_training_starts_from_it() {
-    let dir = scratch("pretrain");
+    let dir = scratch("pipeline-pretrain");
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, pretrained_experiment("[0]", 6)).unwrap();
     // collect x2, pretrain, train x2, eval x2, random eval.
@@ -337,7 +327,7 @@ fn a_pretrain_section_trains_the_trunk_once_per_seed_and_training_starts_from_it
 
 #[test]
 fn two_concurrent_runs_execute_each_stage_once() {
-    let dir = scratch("concurrent");
+    let dir = scratch("pipeline-concurrent");
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, experiment("[0]", 90, 4)).unwrap();
     let spawn = || {
@@ -361,7 +351,7 @@ fn two_concurrent_runs_execute_each_stage_once() {
 
 #[test]
 fn malformed_experiment_files_name_file_line_and_key() {
-    let dir = scratch("malformed");
+    let dir = scratch("pipeline-malformed");
     let cases = [
         ("[train]\nsteps = 10\n\nlearnin_rate = 0.1\n", &["bad.toml", "line 4", "learnin_rate"][..]),
         ("[grid]\nsizes = [100]\n", &["bad.toml", "grid.sizes", "100"][..]),

@@ -1,7 +1,8 @@
 //! The policy network: causality, fitting a batch, checkpoints and configuration errors.
+use crate::helpers::{scratch, seeded};
 use oneshot_lab::config::CellConfig;
-use oneshot_lab::data::loader::DeviceBatch;
 use oneshot_lab::model::architectures::ARCHITECTURES;
+use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig, TaskPass};
 use oneshot_lab::model::policy::Policy;
 use oneshot_lab::model::resnet::ResNet18;
@@ -10,29 +11,12 @@ use oneshot_lab::train::config::{LossWeights, TrainConfig, check_heads};
 use oneshot_lab::train::{build_policy, checkpoint};
 use tch::{Device, Kind, Tensor, nn};
 
-/// libtorch's random generator is global: tests that seed it and draw from it hold this lock, so that each one's
-/// draws do not depend on what other test threads draw meanwhile.
-static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn seeded(seed: i64) -> std::sync::MutexGuard<'static, ()> {
-    let guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
-    tch::manual_seed(seed);
-    guard
-}
-
 fn tiny() -> ModelConfig {
     ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, dropout: 0.0, ..ModelConfig::default() }
 }
 
 fn images(b: i64, t: i64) -> Tensor {
     Tensor::randn([b, t, 3, 32, 40], (Kind::Float, Device::Cpu))
-}
-
-fn scratch(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("oneshot-test-model-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 #[test]
@@ -157,7 +141,7 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
 
 #[test]
 fn a_checkpoint_round_trips_exactly_and_refuses_another_architecture() {
-    let dir = scratch("ckpt");
+    let dir = scratch("model-ckpt");
     let path = dir.join("a.safetensors");
     let _rng = seeded(2);
     let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
@@ -184,7 +168,7 @@ fn a_checkpoint_round_trips_exactly_and_refuses_another_architecture() {
 
 #[test]
 fn pretrained_backbone_weights_load_by_torchvision_name() {
-    let dir = scratch("pretrained");
+    let dir = scratch("model-pretrained");
     let path = dir.join("resnet18.safetensors");
     let _rng = seeded(4);
     let source = nn::VarStore::new(Device::Cpu);
@@ -236,7 +220,7 @@ fn pretrained_backbone_weights_load_by_torchvision_name() {
 
 #[test]
 fn bad_training_files_name_the_key() {
-    let dir = scratch("config");
+    let dir = scratch("model-config");
     let cases = [
         ("[train]\nsteps = 10\nlearning_rate = 0.1\n", "learning_rate"),
         ("[train]\nlr = -0.5\n", "train.lr"),

@@ -1,9 +1,9 @@
 //! How fast the training data path builds batches (sampling, JPEG decoding where frames are not held decoded,
 //! augmentation, normalisation) and copies them to the training device: the supply to set beside a training
 //! step's demand, batch size x steps per second.
-use super::augment::Augmentation;
-use super::loader::{AugmentAt, build_batch};
-use super::pairs::{PairDataset, Split};
+use crate::data::augment::Augmentation;
+use crate::data::loader::{AugmentAt, build_batch};
+use crate::data::pairs::{PairDataset, Split};
 use crate::model::config::ModelConfig;
 use anyhow::{Result, bail};
 use std::time::Instant;
@@ -52,7 +52,7 @@ pub fn measure(
     }
     data.check_fits(model)?;
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
-    let authors_windows = crate::train::config::TrainConfig::default().windows();
+    let authors_windows = super::config::TrainConfig::default().windows();
     let (mut build_seconds, mut copy_seconds) = (0.0, 0.0);
     for step in 0..=batches as u64 {
         let start = Instant::now();

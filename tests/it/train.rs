@@ -1,6 +1,8 @@
 //! Training on a small real collection: validation loss falls for every architecture; the model's sizes are
 //! checked against the data.
-use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
+use crate::helpers::torch_rng;
+use oneshot_lab::data::collect::collect;
+use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
 use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
 use oneshot_lab::eval::probe::{PositionErrors, open_loop};
 use oneshot_lab::model::architectures::ARCHITECTURES;
@@ -17,6 +19,7 @@ fn tasks(ids: &[usize]) -> CollectSettings {
 
 #[test]
 fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
+    let _rng = torch_rng();
     let dir = std::env::temp_dir().join(format!("oneshot-test-train-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };

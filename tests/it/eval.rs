@@ -1,4 +1,5 @@
 //! Closed-loop evaluation: reference policies, reproducibility, unseen layouts.
+use crate::helpers::{scratch, torch_rng};
 use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::eval::layouts::Layouts;
 use oneshot_lab::eval::run::run_eval;
@@ -8,7 +9,6 @@ use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint};
 use std::collections::HashSet;
-use std::path::PathBuf;
 
 fn world() -> WorldConfig {
     WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() }
@@ -18,23 +18,9 @@ fn config(episodes: usize, horizon: usize) -> EvalConfig {
     EvalConfig { episodes, horizon, batch: 8, device: "cpu".into(), ..EvalConfig::default() }
 }
 
-/// libtorch's random generator is global: tests that seed it or sample actions from it hold this lock, so that one
-/// test's draws do not change another's episodes.
-static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn rng_lock() -> std::sync::MutexGuard<'static, ()> {
-    RNG.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("oneshot-test-eval-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 #[test]
 fn the_expert_places_and_the_random_policy_does_not() {
+    let _rng = torch_rng();
     let none = HashSet::new();
     let (_, expert) =
         run_eval(&Policy::Expert, Some(&world()), &config(16, 80), &Layouts::Fresh(none.clone()), 2, None).unwrap();
@@ -51,8 +37,8 @@ fn the_expert_places_and_the_random_policy_does_not() {
 
 #[test]
 fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
-    let _rng = rng_lock();
-    let dir = scratch("repeat");
+    let _rng = torch_rng();
+    let dir = scratch("eval-repeat");
     let model = ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, ..ModelConfig::default() };
     tch::manual_seed(5);
     let (vs, _) = build_policy(&model, tch::Device::Cpu).unwrap();
@@ -70,6 +56,7 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
 
 #[test]
 fn evaluation_layouts_avoid_training_seeds() {
+    let _rng = torch_rng();
     let c = config(32, 10);
     let first = c.episode_specs(&HashSet::new());
     let taken: HashSet<u64> = first.iter().take(5).map(|e| e.agent_seed).chain([first[7].demo_seed]).collect();
@@ -80,7 +67,7 @@ fn evaluation_layouts_avoid_training_seeds() {
 
 #[test]
 fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head() {
-    let _rng = rng_lock();
+    let _rng = torch_rng();
     use oneshot_lab::eval::config::Control;
     use oneshot_lab::model::config::Architecture;
     let save = |name: &str, model: ModelConfig| {
@@ -97,7 +84,7 @@ fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head()
     let policy = save("daml", daml);
     let own = EvalConfig { strips: vec![0], ..config(2, 12) };
     let scripted = EvalConfig { control: Control::ScriptedPoses, ..own.clone() };
-    let out = scratch("outputs");
+    let out = scratch("eval-outputs");
     let (a, _) =
         run_eval(&policy, Some(&world()), &scripted, &Layouts::Fresh(none.clone()), 1, Some(&out.join("a"))).unwrap();
     run_eval(&policy, Some(&world()), &own, &Layouts::Fresh(none.clone()), 1, Some(&out.join("b"))).unwrap();
@@ -116,11 +103,12 @@ fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head()
 
 #[test]
 fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames() {
-    use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
-    use oneshot_lab::eval::localise::{LocaliseConfig, LocaliseTarget, localise};
+    use oneshot_lab::data::collect::collect;
+    use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
     use oneshot_lab::sim::robot::Robot;
-    let _guard = rng_lock();
-    let dir = scratch("localise");
+    use oneshot_lab::train::pretrain::{LocaliseConfig, LocaliseTarget, localise};
+    let _guard = torch_rng();
+    let dir = scratch("eval-localise");
     let settings = CollectSettings { tasks: vec![1], ..CollectSettings::default() };
     let collection = CollectConfig { per_task: 20, world: world(), settings, ..CollectConfig::paper(Robot::Panda) };
     collect(&collection, &dir.join("panda"), 2, false).unwrap();

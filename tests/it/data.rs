@@ -1,19 +1,13 @@
 //! The dataset format and collection: round trips, determinism across worker counts, atomic output.
-use oneshot_lab::data::collect::{CollectConfig, CollectSettings, collect};
+use crate::helpers::scratch;
+use oneshot_lab::data::collect::collect;
+use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
 use oneshot_lab::data::manifest::Manifest;
 use oneshot_lab::data::trajectory::Trajectory;
 use oneshot_lab::fsio::staging_sibling;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
-use std::path::PathBuf;
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("oneshot-test-data-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn tiny(robot: Robot, tasks: Vec<usize>, per_task: usize) -> CollectConfig {
     let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
@@ -27,7 +21,7 @@ fn tiny(robot: Robot, tasks: Vec<usize>, per_task: usize) -> CollectConfig {
 
 #[test]
 fn collection_is_byte_identical_for_any_worker_count_and_round_trips() {
-    let dir = scratch("determinism");
+    let dir = scratch("data-determinism");
     let config = tiny(Robot::Sawyer, vec![3, 14], 2);
     let one = collect(&config, &dir.join("one"), 1, false).unwrap();
     let two = collect(&config, &dir.join("two"), 3, false).unwrap();
@@ -59,7 +53,7 @@ fn demonstrator_and_agent_collections_use_different_layouts() {
 
 #[test]
 fn existing_output_is_refused_and_stale_staging_is_replaced() {
-    let dir = scratch("atomic");
+    let dir = scratch("data-atomic");
     let out = dir.join("set");
     std::fs::create_dir_all(&out).unwrap();
     let err = collect(&tiny(Robot::Panda, vec![0], 1), &out, 1, false).unwrap_err();
@@ -78,7 +72,7 @@ fn existing_output_is_refused_and_stale_staging_is_replaced() {
 
 #[test]
 fn a_corrupted_file_fails_verification() {
-    let dir = scratch("verify");
+    let dir = scratch("data-verify");
     let out = dir.join("set");
     let manifest = collect(&tiny(Robot::Panda, vec![9], 1), &out, 1, false).unwrap();
     let path = out.join(&manifest.trajectories[0].file);
@@ -102,7 +96,7 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
     use oneshot_lab::config::Experiment;
     use oneshot_lab::data::pairs::{PairDataset, Split};
     use oneshot_lab::pipeline::stages::{Job, collection_totals, plan};
-    let dir = scratch("nested");
+    let dir = scratch("data-nested");
     let file = dir.join("sizes.toml");
     let text = "[world]\nimage = { height = 32, width = 40 }\n[collect]\ntasks = [0, 6]\n[grid]\nsizes = [4, 6]\n";
     std::fs::write(&file, text).unwrap();
@@ -152,11 +146,11 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
     use oneshot_lab::data::augment::Augmentation;
     use oneshot_lab::data::loader::{AugmentAt, build_batch};
     use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
-    use oneshot_lab::data::throughput::measure;
     use oneshot_lab::model::config::ModelConfig;
     use oneshot_lab::train::config::TrainConfig;
+    use oneshot_lab::train::throughput::measure;
     use tch::Device;
-    let dir = scratch("loader");
+    let dir = scratch("data-loader");
     for robot in [Robot::Sawyer, Robot::Panda] {
         collect(&tiny(robot, vec![0, 6], 2), &dir.join(robot.to_string()), 2, false).unwrap();
     }

@@ -1,5 +1,6 @@
 //! The authors' protocol where this project once departed from it: camera view, the agent's fixed orientation,
 //! the same frame encoding in training and evaluation, and a policy that stays in the world it was trained in.
+use crate::helpers::torch_rng;
 use oneshot_lab::data::augment::AugmentDraw;
 use oneshot_lab::data::trajectory::{Trajectory, TrajectoryMeta};
 use oneshot_lab::eval::EvalConfig;
@@ -9,10 +10,10 @@ use oneshot_lab::eval::run::run_eval;
 use oneshot_lab::eval::{Policy, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::camera::Visuals;
 use oneshot_lab::sim::env::{Env, GripperYaw, WorldConfig};
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::rollout::run_expert;
-use oneshot_lab::sim::scene::Visuals;
 use oneshot_lab::sim::task::{Instance, Object, SOURCE_BIN, Task};
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint};
 use std::collections::HashSet;
@@ -71,6 +72,7 @@ fn the_agent_expert_holds_one_orientation_and_the_demonstrator_turns() {
 
 #[test]
 fn training_and_evaluation_see_the_same_tensor_for_the_same_frame() {
+    let _rng = torch_rng();
     let w = world(48, 64);
     let mut env = Env::new(Robot::Panda, &w, true).unwrap();
     let instance = Instance::sample(Task::from_id(9).unwrap(), 2);
@@ -98,6 +100,7 @@ fn training_and_evaluation_see_the_same_tensor_for_the_same_frame() {
 
 #[test]
 fn a_trained_policy_refuses_a_world_it_was_not_trained_in() {
+    let _rng = torch_rng();
     let dir = std::env::temp_dir().join(format!("oneshot-test-protocol-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let model = ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, ..ModelConfig::default() };

@@ -1,15 +1,13 @@
 //! bf16 autocast (`train.precision = "bf16"`): on inside its scope only, and a training step's losses and gradients
 //! stay close to the fp32 step's for every architecture.
+use crate::helpers::torch_rng;
 use oneshot_lab::autocast::{Autocast, full_precision};
-use oneshot_lab::data::loader::DeviceBatch;
 use oneshot_lab::model::architectures::ARCHITECTURES;
+use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::policy::Policy;
 use oneshot_lab::train::config::{LossWeights, Precision, TrainConfig, check_precision};
 use tch::{Device, Kind, Tensor, nn};
-
-/// libtorch's random generator is global: the tests that seed it hold this lock.
-static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 #[test]
 fn autocast_runs_matrix_products_in_bf16_inside_its_scope_only() {
@@ -48,7 +46,7 @@ fn step(vs: &nn::VarStore, policy: &Policy, batch: &DeviceBatch, precision: Prec
 
 #[test]
 fn a_bf16_step_stays_close_to_the_fp32_step_for_every_architecture() {
-    let _rng = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let _rng = torch_rng();
     let opts = (Kind::Float, Device::Cpu);
     for registration in ARCHITECTURES.iter().filter(|r| r.bf16) {
         tch::manual_seed(7);

@@ -1,0 +1,71 @@
+//! Options several commands share: the results store, the frames of rendered scenes, and the parser of names in
+//! the configuration's spelling.
+use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::camera::Visuals;
+use oneshot_lab::sim::env::WorldConfig;
+use oneshot_lab::sim::robot::Robot;
+use std::path::PathBuf;
+
+/// The results store's folder when `--store` is not given.
+pub const DEFAULT_STORE: &str = "runs";
+
+/// The results store.
+#[derive(clap::Args)]
+pub struct StoreDir {
+    /// Store folder (database and artifacts).
+    #[arg(long, default_value = DEFAULT_STORE)]
+    pub store: PathBuf,
+}
+
+/// The results store and the experiment's scale profile.
+#[derive(clap::Args)]
+pub struct StoreArgs {
+    #[command(flatten)]
+    pub dir: StoreDir,
+    /// Scale profile defined in the experiment file (e.g. `cpu`).
+    #[arg(long)]
+    pub profile: Option<String>,
+}
+
+/// Frame size and visuals of rendered scenes (each defaults to the `[world]` default).
+#[derive(clap::Args)]
+pub struct FrameArgs {
+    /// Frame height (pixels).
+    #[arg(long)]
+    pub height: Option<usize>,
+    /// Frame width (pixels).
+    #[arg(long)]
+    pub width: Option<usize>,
+    /// `full` visual meshes, or `collision` geometry only.
+    #[arg(long, value_parser = parse_visuals)]
+    pub visuals: Option<Visuals>,
+}
+
+impl FrameArgs {
+    /// The default world with these frames.
+    pub fn world(&self) -> WorldConfig {
+        let d = WorldConfig::default();
+        let image =
+            ImageSize { height: self.height.unwrap_or(d.image.height), width: self.width.unwrap_or(d.image.width) };
+        WorldConfig { image, visuals: self.visuals.unwrap_or(d.visuals), ..d }
+    }
+
+    /// Whether any frame option was given.
+    pub fn given(&self) -> bool {
+        self.height.is_some() || self.width.is_some() || self.visuals.is_some()
+    }
+}
+
+/// A lower-case name in the configuration's spelling, parsed as its type (a robot, visuals, a localisation target).
+pub fn parse_named<T: serde::de::DeserializeOwned>(s: &str) -> Result<T, String> {
+    serde_json::from_value(serde_json::Value::String(s.to_string())).map_err(|e| format!("`{s}`: {e}"))
+}
+
+/// `sawyer` or `panda`.
+pub fn parse_robot(s: &str) -> Result<Robot, String> {
+    parse_named(s)
+}
+
+fn parse_visuals(s: &str) -> Result<Visuals, String> {
+    parse_named(s)
+}

@@ -1,0 +1,62 @@
+//! Tables the evaluation commands print: an evaluation's success rates and the open-loop probe's errors.
+use oneshot_lab::eval::probe::ProbeReport;
+use oneshot_lab::eval::summary::{EvalSummary, percent};
+use oneshot_lab::sim::action::{ACTION_DIM, ACTION_RANGES};
+
+/// Prints the summary as a table.
+pub fn print_summary(s: &EvalSummary) {
+    println!("{} policy, {} episodes (95% Wilson intervals)", s.policy, s.episodes);
+    println!("{:>4}  {:<22} {:<22} {:<22}", "task", "reached", "picked", "placed");
+    for (t, r) in s.per_task.iter().enumerate().filter(|(_, r)| r.reached.n > 0) {
+        println!("{t:>4}  {:<22} {:<22} {:<22}", percent(&r.reached), percent(&r.picked), percent(&r.placed));
+    }
+    let o = &s.overall;
+    println!("{:>4}  {:<22} {:<22} {:<22}", "all", percent(&o.reached), percent(&o.picked), percent(&o.placed));
+}
+
+/// Prints the report with absolute units beside the normalised ones.
+pub fn print_probe(r: &ProbeReport) {
+    const NAMES: [&str; ACTION_DIM] = ["x", "y", "z", "angle/pi", "axis x", "axis y", "axis z", "gripper"];
+    println!("open-loop probe: {} windows, {} actions; mean absolute error (normalised units)", r.windows, r.actions);
+    println!(
+        "{:<9} {:>9} {:>9} {:>11} {:>16} {:>21}",
+        "dimension", "mode", "sample", "mean-only", "mode (absolute)", "mean-only (absolute)"
+    );
+    for d in 0..ACTION_DIM {
+        let half_range = (ACTION_RANGES[d][1] - ACTION_RANGES[d][0]) / 2.0;
+        let unit = if d < 3 { " m" } else { "" };
+        println!(
+            "{:<9} {:>9.3} {:>9.3} {:>11.3} {:>14.4}{unit} {:>19.4}{unit}",
+            NAMES[d],
+            r.mode[d],
+            r.sample[d],
+            r.mean_baseline[d],
+            r.mode[d] * half_range,
+            r.mean_baseline[d] * half_range
+        );
+    }
+    println!("by window position, mode / mean-only (absolute, m): position 0 sees one agent frame, so only there");
+    println!("must the object be found in the picture rather than in the arm's motion");
+    println!("{:<9} {:>17} {:>17} {:>17}", "position", "x", "y", "z");
+    for (i, p) in r.by_position.iter().enumerate() {
+        let cell = |d: usize| {
+            let half_range = (ACTION_RANGES[d][1] - ACTION_RANGES[d][0]) / 2.0;
+            format!("{:.4} / {:.4}", p.mode[d] * half_range, p.mean_baseline[d] * half_range)
+        };
+        println!("{:<9} {:>17} {:>17} {:>17}", i, cell(0), cell(1), cell(2));
+    }
+    if let Some((head, mean)) = r.poses_from_first_frame {
+        for (name, at) in [("grasp", 0), ("drop", 3)] {
+            println!(
+                "pose head, {name} position from the first agent frame, mean absolute error x / y / z (m): \
+                 {:.4} / {:.4} / {:.4} (mean {name} position: {:.4} / {:.4} / {:.4})",
+                head[at],
+                head[at + 1],
+                head[at + 2],
+                mean[at],
+                mean[at + 1],
+                mean[at + 2]
+            );
+        }
+    }
+}

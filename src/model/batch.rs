@@ -1,0 +1,12 @@
+//! What a network trains on: one batch of training samples as tensors on its device.
+use tch::Tensor;
+
+/// A batch on a device: `context` `[B, Tc, 3, H, W]`, `agent` `[B, Ta, 3, H, W]`, `actions` `[B, Ta - 1, 8]`,
+/// `points` `[B, 2]`, `poses` `[B, 6]`.
+pub struct DeviceBatch {
+    pub context: Tensor,
+    pub agent: Tensor,
+    pub actions: Tensor,
+    pub points: Tensor,
+    pub poses: Tensor,
+}

@@ -1,0 +1,83 @@
+//! Which stages of a plan a run considers: `--only` (the matching cells' stages and all they depend on) and
+//! `--force` (the matching stages and all below them), by glob patterns over the stages' `cell/kind` labels.
+use super::graph::{Plan, Stage, short};
+use anyhow::{Context, Result};
+use globset::{Glob, GlobMatcher};
+use std::collections::{BTreeMap, HashSet};
+
+/// A `--only` or `--force` pattern: a glob (`*` any run of characters, `?` one, `[..]` a class) over the whole
+/// label; a pattern without a wildcard matches any label containing it.
+#[derive(Debug, Clone)]
+pub struct Pattern(GlobMatcher);
+
+impl Pattern {
+    /// Parses `pattern`; the error names it.
+    pub fn new(pattern: &str) -> Result<Pattern> {
+        let wild = pattern.contains(['*', '?', '[']);
+        let glob = if wild { pattern.to_string() } else { format!("*{pattern}*") };
+        let glob = Glob::new(&glob).with_context(|| format!("stage pattern {pattern:?}"))?;
+        Ok(Pattern(glob.compile_matcher()))
+    }
+
+    /// Whether `label` matches.
+    pub fn matches(&self, label: &str) -> bool {
+        self.0.is_match(label)
+    }
+}
+
+/// Labels of every stage of a plan, by key.
+pub type Labels = BTreeMap<String, Vec<String>>;
+
+/// A readable name of a stage: its first label, the job's detail and the short key.
+pub fn display_name(stage: &Stage, labels: &Labels) -> String {
+    let label = labels.get(&stage.key).and_then(|l| l.first()).cloned().unwrap_or_else(|| stage.kind().name().into());
+    let detail = stage.job.detail();
+    let detail = if detail.is_empty() { detail } else { format!(" {detail}") };
+    format!("{label}{detail} [{}]", short(&stage.key))
+}
+
+fn labelled(labels: &Labels, key: &str, pattern: &Pattern) -> bool {
+    labels.get(key).is_some_and(|ls| ls.iter().any(|l| pattern.matches(l)))
+}
+
+/// The keys to consider: the matching cells' stages and all they depend on, in plan order.
+pub fn selected(plan: &Plan, only: Option<&Pattern>, labels: &Labels) -> Vec<String> {
+    let Some(p) = only else { return plan.order.clone() };
+    let mut want: HashSet<String> = plan.order.iter().filter(|k| labelled(labels, k, p)).cloned().collect();
+    for k in plan.order.iter().rev() {
+        if want.contains(k) {
+            want.extend(plan.stages[k].upstream.iter().cloned());
+        }
+    }
+    plan.order.iter().filter(|k| want.contains(*k)).cloned().collect()
+}
+
+/// The stages `--force` re-runs: the matching ones and everything below them.
+pub fn forced(plan: &Plan, keys: &[String], force: Option<&Pattern>, labels: &Labels) -> HashSet<String> {
+    let Some(p) = force else { return HashSet::new() };
+    keys.iter().filter(|k| labelled(labels, k, p)).flat_map(|k| plan.downstream(k)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Pattern;
+
+    fn matches(pattern: &str, label: &str) -> bool {
+        Pattern::new(pattern).unwrap().matches(label)
+    }
+
+    #[test]
+    fn patterns_match_substrings_and_globs() {
+        assert!(matches("n480", "n480-full-s0/train"));
+        assert!(matches("n480-*-s1/eval", "n480-no_point-s1/eval"));
+        assert!(!matches("n480-*-s1/eval", "n480-no_point-s0/eval"));
+        assert!(matches("*/eval", "expert/eval"));
+        assert!(!matches("*/train", "expert/eval"));
+    }
+
+    #[test]
+    fn a_malformed_pattern_is_an_error_naming_it() {
+        let err = Pattern::new("n480-[full").unwrap_err().to_string();
+        assert!(err.contains("n480-[full"), "{err}");
+    }
+}
