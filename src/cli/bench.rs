@@ -7,7 +7,7 @@ use oneshot_lab::data::loader::AugmentAt;
 use oneshot_lab::data::pairs::PairDataset;
 use oneshot_lab::device::{autotune_convolutions, parse_device};
 use oneshot_lab::eval::rollout::rollouts;
-use oneshot_lab::eval::{EvalConfig, EvalOutput, Policy};
+use oneshot_lab::eval::{Actor, EvalConfig, EvalOutput};
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
@@ -416,7 +416,7 @@ fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
         c.image.height, c.image.width
     );
     let specs = config.episode_specs(&HashSet::new());
-    for (name, policy) in [("small network", Policy::Network(&trained)), ("random policy", Policy::Random)] {
+    for (name, policy) in [("small network", Actor::Network(&trained)), ("random policy", Actor::Random)] {
         let start = Instant::now();
         let results =
             rollouts(&policy, &world, &config, &specs, workers, &EvalOutput { strips_dir: None, videos_dir: None })?;

@@ -12,7 +12,7 @@ use oneshot_lab::eval::history::HistoryMode;
 use oneshot_lab::eval::layouts::{Layouts, training_seeds};
 use oneshot_lab::eval::probe::open_loop;
 use oneshot_lab::eval::run::run_eval;
-use oneshot_lab::eval::{ActionChoice, EvalConfig, Policy, PolicyFiles, Weights};
+use oneshot_lab::eval::{ActionChoice, Actor, ActorFiles, EvalConfig, Weights};
 use oneshot_lab::train::load_trained;
 use oneshot_lab::train::pretrain::{LocaliseTarget, PretrainConfig};
 use std::path::PathBuf;
@@ -224,10 +224,10 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         Some(other) => bail!("--training-layouts takes DEMOS,AGENTS: two folders, not {}", other.len()),
         None => Layouts::Fresh(training_seeds(&a.exclude_from)?),
     };
-    let policy: PolicyFiles = Policy::parse(&a.policy, |dir| Weights { at: dir.into(), step: a.checkpoint });
+    let policy: ActorFiles = Actor::parse(&a.policy, |dir| Weights { at: dir.into(), step: a.checkpoint });
     let world = match (&policy, a.frames.given()) {
         (_, false) => None,
-        (Policy::Network(_), true) => {
+        (Actor::Network(_), true) => {
             bail!("a trained policy is evaluated in the world it was trained in: drop --height, --width and --visuals")
         }
         (_, true) => Some(a.frames.world()),

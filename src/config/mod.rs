@@ -26,11 +26,11 @@ pub enum Reference {
     Random,
 }
 
-impl<N> From<Reference> for crate::eval::Policy<N> {
+impl<N> From<Reference> for crate::eval::Actor<N> {
     fn from(r: Reference) -> Self {
         match r {
-            Reference::Expert => crate::eval::Policy::Expert,
-            Reference::Random => crate::eval::Policy::Random,
+            Reference::Expert => crate::eval::Actor::Expert,
+            Reference::Random => crate::eval::Actor::Random,
         }
     }
 }

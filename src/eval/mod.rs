@@ -5,10 +5,10 @@
 //! context frames drawn like in training and its own recent frames (see [`history`]), and its action at the
 //! window's last position is sampled; the rotation is replaced by the agent's fixed orientation and the gripper
 //! binarised.
+pub mod actor;
 pub mod config;
 pub mod history;
 pub mod layouts;
-pub mod policy;
 pub mod probe;
 pub mod rollout;
 pub mod run;
@@ -18,8 +18,8 @@ pub mod summary;
 pub mod video;
 pub mod workers;
 
+pub use actor::{Actor, ActorFiles, Weights};
 pub use config::{ActionChoice, EvalConfig};
-pub use policy::{Policy, PolicyFiles, Weights};
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;

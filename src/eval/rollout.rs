@@ -1,8 +1,8 @@
 //! Lockstep rollouts: simulation workers step their scenes while the network (if any) runs batched, with the
 //! authors' evaluation protocol applied to the network's actions.
+use super::actor::Actor;
 use super::config::{ActionChoice, Control, EvalConfig};
 use super::history::AgentHistory;
-use super::policy::Policy;
 use super::workers::{EpisodeSpec, WorkerPool, WorkerSpec};
 use super::{EpisodeResult, EvalOutput, strip, video};
 use crate::data::augment::AugmentDraw;
@@ -21,11 +21,11 @@ use rand_chacha::ChaCha8Rng;
 use tch::{Device, Tensor};
 
 /// A policy as it runs: the loaded network, or a reference policy.
-pub type LoadedPolicy<'a> = Policy<&'a TrainedPolicy>;
+pub type LoadedActor<'a> = Actor<&'a TrainedPolicy>;
 
 /// Runs the episodes `specs` of `policy` in waves of `config.batch`, with `workers` simulation threads.
 pub fn rollouts(
-    policy: &LoadedPolicy,
+    policy: &LoadedActor,
     world: &WorldConfig,
     config: &EvalConfig,
     specs: &[EpisodeSpec],
@@ -34,7 +34,7 @@ pub fn rollouts(
 ) -> Result<Vec<EpisodeResult>> {
     config.validate()?;
     let device = crate::device::parse_device(&config.device)?;
-    if let Policy::Network(p) = policy {
+    if let Actor::Network(p) = policy {
         let differences = world_differences(&p.summary.world, world);
         if !differences.is_empty() {
             bail!("the policy was trained in another world than the evaluation's: {}", differences.join("; "));
@@ -101,7 +101,7 @@ struct NetworkInputs {
 
 /// Runs one lockstep wave of episodes.
 fn run_wave(
-    policy: &LoadedPolicy,
+    policy: &LoadedActor,
     pool: &WorkerPool,
     wave: &[EpisodeSpec],
     world: &WorldConfig,
@@ -112,7 +112,7 @@ fn run_wave(
     let started = pool.start(wave)?;
     let n = wave.len();
     let mut inputs: Vec<NetworkInputs> = Vec::new();
-    if let Policy::Network(p) = policy {
+    if let Actor::Network(p) = policy {
         let q = p.summary.jpeg_quality;
         for (e, s) in wave.iter().zip(&started) {
             let mut rng = ChaCha8Rng::seed_from_u64(derive_seed("eval-context", &[config.seed, e.index as u64]));
@@ -125,8 +125,8 @@ fn run_wave(
             inputs.push(NetworkInputs { context, history });
         }
     }
-    let scripted = matches!(policy, Policy::Network(_)) && config.control == Control::ScriptedPoses;
-    if let (Policy::Network(p), true) = (policy, scripted) {
+    let scripted = matches!(policy, Actor::Network(_)) && config.control == Control::ScriptedPoses;
+    if let (Actor::Network(p), true) = (policy, scripted) {
         pool.guide(&predicted_guidance(p, &inputs, world, device)?)?;
     }
     // Frames of the episodes drawn as strips or videos, each with the stages that held when it was seen.
@@ -162,7 +162,7 @@ fn run_wave(
         }
         let mut commands: Vec<Option<Option<Action>>> = vec![None; n];
         match policy {
-            Policy::Network(p) if !scripted => {
+            Actor::Network(p) if !scripted => {
                 let sampled = network_actions(p, &active, &inputs, world, config.action, device)?;
                 for (&j, a) in active.iter().zip(sampled.chunks(ACTION_DIM)) {
                     commands[j] = Some(Some(command(a, t, config, started[j].rest_orientation)));
@@ -184,7 +184,7 @@ fn run_wave(
             hit(s.milestones.picked, &mut r.first_picked);
             hit(s.milestones.placed, &mut r.first_placed);
             (r.reached, r.picked, r.placed) = (s.milestones.reached, s.milestones.picked, s.milestones.placed);
-            if let (Policy::Network(p), false) = (policy, scripted) {
+            if let (Actor::Network(p), false) = (policy, scripted) {
                 inputs[j].history.push(network_frame(&s.frame, world, p.summary.jpeg_quality)?);
             }
             if recorded[j] {

@@ -1,8 +1,8 @@
 //! Evaluation's entry point: load the policy, run its episodes, and write the episodes, the summary and any strips
 //! and videos into an output folder.
+use super::actor::{Actor, ActorFiles};
 use super::config::EvalConfig;
 use super::layouts::Layouts;
-use super::policy::{Policy, PolicyFiles};
 use super::rollout::rollouts;
 use super::summary::{EvalSummary, summarize};
 use super::{EpisodeResult, EvalOutput};
@@ -21,7 +21,7 @@ pub const VIDEOS_DIR: &str = "videos";
 /// trained policy runs in the world it was trained in; `world`, if given, must be that world (reference policies
 /// run in `world` or the default world).
 pub fn run_eval(
-    policy: &PolicyFiles,
+    policy: &ActorFiles,
     world: Option<&WorldConfig>,
     config: &EvalConfig,
     layouts: &Layouts,
@@ -29,10 +29,10 @@ pub fn run_eval(
     out: Option<&Path>,
 ) -> Result<(Vec<EpisodeResult>, EvalSummary)> {
     let device = crate::device::parse_device(&config.device)?;
-    let trained: Policy<TrainedPolicy> = policy.as_ref().try_map(|w| load_trained(&w.at, w.step, device))?;
+    let trained: Actor<TrainedPolicy> = policy.as_ref().try_map(|w| load_trained(&w.at, w.step, device))?;
     let loaded = trained.as_ref();
     let world = match &trained {
-        Policy::Network(t) => world.cloned().unwrap_or_else(|| t.summary.world.clone()),
+        Actor::Network(t) => world.cloned().unwrap_or_else(|| t.summary.world.clone()),
         _ => world.cloned().unwrap_or_default(),
     };
     let output = EvalOutput { strips_dir: out.map(|o| o.join("strips")), videos_dir: out.map(|o| o.join(VIDEOS_DIR)) };

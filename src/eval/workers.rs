@@ -1,7 +1,7 @@
 //! Simulation workers for lockstep evaluation: each thread owns its MuJoCo scenes and renderers, makes the
 //! demonstrator videos, and steps its agent scenes with actions chosen centrally (a network, batched) or
 //! locally (the scripted expert, the random policy).
-use super::policy::Policy;
+use super::actor::Actor;
 use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
 use crate::sim::camera::Camera;
@@ -19,7 +19,7 @@ use std::thread::JoinHandle;
 
 /// Who chooses the agent's actions: the network (centrally: actions arrive with each step command) or a
 /// reference policy inside the worker.
-pub type Chooser = Policy<()>;
+pub type Chooser = Actor<()>;
 
 /// One evaluation episode: a task, the agent's layout and the demonstrator's layout.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -108,7 +108,7 @@ impl Worker {
             let task = Task::from_id(spec.task)?;
             let (demo_frames, demo_seed) = demonstrate(&mut self.demo_env, task, spec.demo_seed, &self.spec)?;
             slot.env.reset(&Instance::sample(task, spec.agent_seed));
-            slot.expert = (self.spec.chooser == Policy::Expert).then(|| Expert::new(&slot.env));
+            slot.expert = (self.spec.chooser == Actor::Expert).then(|| Expert::new(&slot.env));
             slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
             let frame = slot.env.render_with(camera)?;
             out.push(Started { demo_frames, demo_seed, frame, rest_orientation: slot.env.rest_orientation() });
@@ -127,7 +127,7 @@ impl Worker {
             let action = match (given, slot.expert.as_mut(), self.spec.chooser) {
                 (Some(a), _, _) => a,
                 (None, Some(expert), _) => expert.act(&slot.env),
-                (None, None, Policy::Random) => {
+                (None, None, Actor::Random) => {
                     let n: [f32; ACTION_DIM] = std::array::from_fn(|_| slot.rng.random_range(-1.0..=1.0));
                     Action::from_normalized(&n)
                 }

@@ -3,7 +3,7 @@ use crate::helpers::{scratch, torch_rng};
 use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::eval::layouts::Layouts;
 use oneshot_lab::eval::run::run_eval;
-use oneshot_lab::eval::{Policy, Weights};
+use oneshot_lab::eval::{Actor, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
@@ -23,12 +23,12 @@ fn the_expert_places_and_the_random_policy_does_not() {
     let _rng = torch_rng();
     let none = HashSet::new();
     let (_, expert) =
-        run_eval(&Policy::Expert, Some(&world()), &config(16, 80), &Layouts::Fresh(none.clone()), 2, None).unwrap();
+        run_eval(&Actor::Expert, Some(&world()), &config(16, 80), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     let placed = expert.overall.placed;
     assert!(placed.value >= 15.0 / 16.0, "expert placed {placed:?}");
     assert!(placed.low < placed.value && placed.high >= placed.value);
     let (episodes, random) =
-        run_eval(&Policy::Random, Some(&world()), &config(16, 30), &Layouts::Fresh(none.clone()), 2, None).unwrap();
+        run_eval(&Actor::Random, Some(&world()), &config(16, 30), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     assert_eq!(random.overall.placed.value, 0.0);
     assert!(episodes.iter().all(|e| e.steps == 30));
     let tasks: HashSet<usize> = episodes.iter().map(|e| e.task).collect();
@@ -45,7 +45,7 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
     let summary = TrainSummary::untrained(model, world(), 90);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
-    let policy = Policy::Network(Weights { at: dir.clone(), step: None });
+    let policy = Actor::Network(Weights { at: dir.clone(), step: None });
     let none = HashSet::new();
     let (a, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     let (b, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 1, None).unwrap();
@@ -77,7 +77,7 @@ fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head()
         checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
         let summary = TrainSummary::untrained(model, world(), 90);
         std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
-        Policy::Network(Weights { at: dir, step: None })
+        Actor::Network(Weights { at: dir, step: None })
     };
     let none = HashSet::new();
     let daml = ModelConfig { architecture: Architecture::named("daml"), backbone_width: 8, ..ModelConfig::default() };

@@ -7,7 +7,7 @@ use oneshot_lab::data::manifest::Manifest;
 use oneshot_lab::eval::layouts::Layouts;
 use oneshot_lab::eval::run::run_eval;
 use oneshot_lab::eval::{ActionChoice, EpisodeResult, EvalConfig};
-use oneshot_lab::eval::{Policy, Weights};
+use oneshot_lab::eval::{Actor, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::camera::Visuals;
@@ -77,9 +77,9 @@ fn a_briefly_trained_policy_goes_to_the_demonstrated_object_in_closed_loop() {
         action: ActionChoice::Mode,
         ..EvalConfig::default()
     };
-    let policy = Policy::Network(Weights { at: out.clone(), step: None });
+    let policy = Actor::Network(Weights { at: out.clone(), step: None });
     let (learned, _) = run_eval(&policy, None, &eval, &layouts, 2, None).unwrap();
-    let (random, _) = run_eval(&Policy::Random, Some(&world), &eval, &layouts, 2, None).unwrap();
+    let (random, _) = run_eval(&Actor::Random, Some(&world), &eval, &layouts, 2, None).unwrap();
     // Episode i runs agent trajectory i's layout; the last slot of each task was held out for validation.
     let slots: Vec<usize> = Manifest::load(&agents).unwrap().trajectories.iter().map(|e| e.index).collect();
     let trained = |e: &&EpisodeResult| slots[e.index] < 3;

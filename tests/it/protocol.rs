@@ -7,7 +7,7 @@ use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::eval::layouts::Layouts;
 use oneshot_lab::eval::rollout::network_frame;
 use oneshot_lab::eval::run::run_eval;
-use oneshot_lab::eval::{Policy, Weights};
+use oneshot_lab::eval::{Actor, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::camera::Visuals;
@@ -109,7 +109,7 @@ fn a_trained_policy_refuses_a_world_it_was_not_trained_in() {
     let trained_in = WorldConfig { visuals: Visuals::Collision, ..world(32, 40) };
     let summary = TrainSummary::untrained(model, trained_in.clone(), 90);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
-    let policy = Policy::Network(Weights { at: dir.clone(), step: None });
+    let policy = Actor::Network(Weights { at: dir.clone(), step: None });
     let config = EvalConfig { episodes: 1, horizon: 2, batch: 1, device: "cpu".into(), ..EvalConfig::default() };
     let none = HashSet::new();
     let other = world(32, 40);
@@ -121,7 +121,7 @@ fn a_trained_policy_refuses_a_world_it_was_not_trained_in() {
     let err = format!(
         "{:#}",
         run_eval(
-            &Policy::Network(Weights { at: dir.clone(), step: Some(7) }),
+            &Actor::Network(Weights { at: dir.clone(), step: Some(7) }),
             None,
             &config,
             &Layouts::Fresh(none.clone()),

@@ -4,7 +4,7 @@ use super::{MetricName, RunContext, StageOutputs, Upstream};
 use crate::config::{CellConfig, Reference};
 use crate::eval::layouts::{Layouts, training_seeds};
 use crate::eval::run::run_eval;
-use crate::eval::{EvalConfig, Policy, Weights};
+use crate::eval::{Actor, EvalConfig, Weights};
 use crate::pipeline::graph::Plan;
 use crate::pipeline::key::omit_when;
 use crate::sim::env::WorldConfig;
@@ -19,7 +19,7 @@ pub const VERSION: u32 = 3;
 /// collections whose layouts it must avoid.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvalJob {
-    pub policy: Policy<Weights<String>>,
+    pub policy: Actor<Weights<String>>,
     pub world: WorldConfig,
     pub eval: EvalConfig,
     pub exclude: Vec<String>,
@@ -28,7 +28,7 @@ pub struct EvalJob {
 impl EvalJob {
     /// Whether a network is evaluated.
     pub fn runs_network(&self) -> bool {
-        matches!(self.policy, Policy::Network(_))
+        matches!(self.policy, Actor::Network(_))
     }
 }
 
@@ -54,7 +54,7 @@ pub fn add_trained(plan: &mut Plan, cell: &CellConfig, train: &str, step: Option
         inputs["checkpoint"] = s.into();
     }
     let job = EvalJob {
-        policy: Policy::Network(Weights { at: train.to_string(), step }),
+        policy: Actor::Network(Weights { at: train.to_string(), step }),
         world: cell.world.clone(),
         eval: cell.eval.clone(),
         exclude: data.to_vec(),

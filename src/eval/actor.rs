@@ -1,13 +1,13 @@
-//! What an evaluation measures: a trained network or a reference policy. The network is referred to differently
+//! Who acts in an evaluation: a trained network or a reference policy (the network itself is `model::policy::Policy`). The network is referred to differently
 //! at each layer (a train stage key while planning, a training folder when a stage runs, the loaded network during
 //! rollouts), so the type is generic over that reference.
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
-/// A policy to evaluate.
+/// Who acts in an evaluation: a trained network (the model this tool trains) or a reference policy.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Policy<N> {
+pub enum Actor<N> {
     /// A trained network.
     Network(N),
     /// The scripted expert with privileged state (the upper bound).
@@ -16,49 +16,49 @@ pub enum Policy<N> {
     Random,
 }
 
-impl<N> Policy<N> {
+impl<N> Actor<N> {
     /// A short name for reports: `network`, `expert` or `random`.
     pub fn name(&self) -> &'static str {
         match self {
-            Policy::Network(_) => "network",
-            Policy::Expert => "expert",
-            Policy::Random => "random",
+            Actor::Network(_) => "network",
+            Actor::Expert => "expert",
+            Actor::Random => "random",
         }
     }
 
     /// The same policy with the network referred to through `f`.
-    pub fn map<M>(self, f: impl FnOnce(N) -> M) -> Policy<M> {
+    pub fn map<M>(self, f: impl FnOnce(N) -> M) -> Actor<M> {
         match self {
-            Policy::Network(n) => Policy::Network(f(n)),
-            Policy::Expert => Policy::Expert,
-            Policy::Random => Policy::Random,
+            Actor::Network(n) => Actor::Network(f(n)),
+            Actor::Expert => Actor::Expert,
+            Actor::Random => Actor::Random,
         }
     }
 
     /// The same policy, borrowing the network reference.
-    pub fn as_ref(&self) -> Policy<&N> {
+    pub fn as_ref(&self) -> Actor<&N> {
         match self {
-            Policy::Network(n) => Policy::Network(n),
-            Policy::Expert => Policy::Expert,
-            Policy::Random => Policy::Random,
+            Actor::Network(n) => Actor::Network(n),
+            Actor::Expert => Actor::Expert,
+            Actor::Random => Actor::Random,
         }
     }
 
     /// The same policy with the network referred to through the fallible `f`.
-    pub fn try_map<M, E>(self, f: impl FnOnce(N) -> Result<M, E>) -> Result<Policy<M>, E> {
+    pub fn try_map<M, E>(self, f: impl FnOnce(N) -> Result<M, E>) -> Result<Actor<M>, E> {
         Ok(match self {
-            Policy::Network(n) => Policy::Network(f(n)?),
-            Policy::Expert => Policy::Expert,
-            Policy::Random => Policy::Random,
+            Actor::Network(n) => Actor::Network(f(n)?),
+            Actor::Expert => Actor::Expert,
+            Actor::Random => Actor::Random,
         })
     }
 
     /// Parses `expert`, `random`, or anything else as a network reference through `network`.
-    pub fn parse(s: &str, network: impl FnOnce(&str) -> N) -> Policy<N> {
+    pub fn parse(s: &str, network: impl FnOnce(&str) -> N) -> Actor<N> {
         match s {
-            "expert" => Policy::Expert,
-            "random" => Policy::Random,
-            other => Policy::Network(network(other)),
+            "expert" => Actor::Expert,
+            "random" => Actor::Random,
+            other => Actor::Network(network(other)),
         }
     }
 }
@@ -72,4 +72,4 @@ pub struct Weights<L> {
 }
 
 /// A policy whose network is a training folder.
-pub type PolicyFiles = Policy<Weights<PathBuf>>;
+pub type ActorFiles = Actor<Weights<PathBuf>>;
