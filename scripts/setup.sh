@@ -8,6 +8,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# The machine's rendering packages first: without them every rendering command fails after the build.
+bash scripts/system-packages.sh
+
 PYTHON=${PYTHON:-python3}
 VENV=.venv
 stamp=$VENV/.oneshot-setup-v2
