@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU measurements of the README's "Running on a GPU" section, on one CUDA machine:
+# The GPU measurements of docs/benchmarks.md, on one CUDA machine:
 #   bash bench/gpu.sh [BINARY]
 # BINARY defaults to target/release/oneshot-lab. libtorch's CUDA build is taken from the machine's PyTorch
 # (`python3 -c "import torch"` must work); robosuite's assets from ONESHOT_ASSETS or the build's .venv.

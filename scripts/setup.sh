@@ -19,7 +19,7 @@ if [ ! -f "$stamp" ]; then
   [ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
   # --no-deps: only the native libraries and assets are used. libtorch_cpu.so links the CUDA runtime
   # and CUPTI, so those two small wheels come too; the multi-GB CUDA math libraries are not needed on CPU
-  # (on a GPU machine, point LD_LIBRARY_PATH at a CUDA-enabled torch, see README).
+  # (on a GPU machine, point LD_LIBRARY_PATH at a CUDA-enabled torch, see docs/guide/gpu.md).
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps \
     torch==2.11.0 mujoco==3.17.0 robosuite==1.5.2 \
     "nvidia-cuda-runtime==13.0.96.*" "nvidia-cuda-cupti==13.0.85.*"

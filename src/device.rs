@@ -28,7 +28,7 @@ pub fn parse_device(name: &str) -> Result<Device> {
         if count == 0 {
             bail!(
                 "device = {name:?}, but libtorch sees no CUDA device: this machine has no usable GPU, or libtorch's \
-                 CUDA backend was not loaded (the README's GPU section: LD_PRELOAD=libtorch_cuda.so)"
+                 CUDA backend was not loaded (docs/guide/gpu.md: LD_PRELOAD=libtorch_cuda.so)"
             );
         }
         if n >= count {

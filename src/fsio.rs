@@ -45,6 +45,17 @@ pub fn publish_dir(staging: &Path, dest: &Path) -> Result<()> {
     std::fs::rename(staging, dest).with_context(|| format!("moving {} to {}", staging.display(), dest.display()))
 }
 
+/// Checks that `name`, which becomes a file or folder name, is a plain one: letters, digits, `.`, `_` and `-`
+/// only, not empty, `.` or `..`, so that no name from a file or a flag reaches outside its folder; the error
+/// names `what` and the name.
+pub fn check_plain_name(what: &str, name: &str) -> Result<()> {
+    let plain = name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
+    if name.is_empty() || name == "." || name == ".." || !plain {
+        anyhow::bail!("{what} = {name:?} is not a plain name (letters, digits, '.', '_' and '-'; not '.' or '..')");
+    }
+    Ok(())
+}
+
 /// Removes the folder `dir` if it exists.
 pub fn remove_dir_if_present(dir: &Path) -> Result<()> {
     if dir.exists() {
@@ -56,6 +67,17 @@ pub fn remove_dir_if_present(dir: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_plain_names_pass() {
+        for ok in ["smoke", "learn_cpu16", "n480-full-s0", "v1.2"] {
+            check_plain_name("name", ok).unwrap();
+        }
+        for bad in ["", ".", "..", "../artifacts", "/tmp/x", "a/b", "a b", "r\\x"] {
+            let err = check_plain_name("name", bad).unwrap_err().to_string();
+            assert!(err.contains("name = ") && err.contains("not a plain name"), "{bad}: {err}");
+        }
+    }
 
     #[test]
     fn temporary_names_keep_the_extension() {

@@ -2,7 +2,7 @@
 use super::options::{StoreArgs, StoreDir};
 use anyhow::{Result, bail};
 use oneshot_lab::config::Experiment;
-use oneshot_lab::pipeline::gc::{remove_artifacts, unused_artifacts};
+use oneshot_lab::pipeline::gc::{folder_size, remove_artifacts, unused_artifacts};
 use oneshot_lab::pipeline::graph::short;
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::slurm::detached;
@@ -235,18 +235,22 @@ pub fn query(a: QueryArgs) -> Result<()> {
 
 /// Lists (or with `--delete` removes) artifact folders that no stage of the given experiment files uses.
 pub fn gc(a: GcArgs) -> Result<()> {
+    if a.delete && a.files.is_empty() {
+        bail!("gc --delete needs the experiment files whose stages it keeps; with none it would remove every artifact");
+    }
     let plans =
         a.files.iter().map(|f| load_plan(f, a.store.profile.as_deref()).map(|(_, p)| p)).collect::<Result<Vec<_>>>()?;
     let mut store = Store::open_existing(&a.store.dir.store)?;
-    let unused = unused_artifacts(&a.store.dir.store, &plans)?;
-    if a.delete {
-        remove_artifacts(&mut store, &unused)?;
-    }
+    let unused = unused_artifacts(&a.store.dir.store, &plans, &store.held_stages()?)?;
     for p in &unused {
-        println!("{}{}", if a.delete { "removed " } else { "" }, p.display());
+        println!("{}", p.display());
     }
-    if !a.delete && !unused.is_empty() {
-        println!("{} unused artifact folders; run again with --delete to remove them", unused.len());
+    let (n, mb) = (unused.len(), unused.iter().map(|p| folder_size(p)).sum::<u64>() as f64 / 1e6);
+    if a.delete {
+        println!("removing {n} unused artifact folders ({mb:.1} MB)");
+        remove_artifacts(&mut store, &unused)?;
+    } else if !unused.is_empty() {
+        println!("{n} unused artifact folders ({mb:.1} MB); run again with --delete to remove them");
     }
     Ok(())
 }

@@ -58,8 +58,9 @@ pub struct Grid {
     pub seeds: Vec<u64>,
     pub references: Vec<Reference>,
     /// Smaller sizes train on the first slots of each task of the largest size's collection (collected once per
-    /// robot and collection settings); `false` collects every size separately (the authors' protocol). A size's
-    /// trajectories are the same either way: a slot's layout depends on the seed, robot, task and slot alone.
+    /// robot and collection settings), and share its pool of layouts; `false` collects every size separately (the
+    /// authors' protocol), each with a pool of its own size under `collect.layouts = "shared"`. With
+    /// `collect.layouts = "unique"` a size's trajectories are the same either way.
     pub nested: bool,
 }
 
@@ -138,6 +139,12 @@ impl Experiment {
             .name
             .clone()
             .unwrap_or_else(|| path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+        crate::fsio::check_plain_name("name", &name).with_context(|| {
+            format!(
+                "{file}{}: the experiment's name names its report folder",
+                line_of(&text, "name").map(|l| format!(" (line {l})")).unwrap_or_default()
+            )
+        })?;
         let description = shape.description.clone().unwrap_or_default();
         let base_table = shape.sections();
         let (grid, variants) = (shape.grid, shape.variants);
@@ -147,6 +154,10 @@ impl Experiment {
         }
         let base = resolve(&base_table, &file, "the base configuration", &text)?;
         validate_grid(&grid, &variants, &file, &text)?;
+        for variant in variants.keys() {
+            crate::fsio::check_plain_name("variant", variant)
+                .with_context(|| format!("{file}: variant names become cell and folder names"))?;
+        }
 
         let mut cells = Vec::new();
         for variant in &grid.variants {

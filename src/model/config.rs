@@ -212,8 +212,11 @@ impl ModelConfig {
         if !(0.0..1.0).contains(&self.dropout) {
             bail!("model.dropout = {} out of range [0, 1)", self.dropout);
         }
-        if self.attention_temperature.is_some_and(|t| t <= 0.0) {
-            bail!("model.attention_temperature must be positive");
+        if let Some(t) = self.attention_temperature.filter(|t| !(t.is_finite() && *t > 0.0)) {
+            bail!("model.attention_temperature = {t} must be a positive number");
+        }
+        if !self.log_scale_min.is_finite() {
+            bail!("model.log_scale_min = {} must be a number", self.log_scale_min);
         }
         if self.context != ContextMode::FirstLast && self.context_frames < 2 {
             bail!("model.context_frames = {} must be at least 2", self.context_frames);

@@ -217,8 +217,8 @@ fn catch_up_with_slurm(store: &mut Store, root: &Path, events: &dyn RunEvents) {
 pub fn run(plan: &Plan, root: &Path, opts: &RunOptions, events: &dyn RunEvents) -> Result<RunReport> {
     let mut store = Store::open(root)?;
     let labels = plan.labels();
-    let keys = selected(plan, opts.only.as_ref(), &labels);
-    let forced = forced(plan, &keys, opts.force.as_ref(), &labels);
+    let keys = selected(plan, opts.only.as_ref(), &labels)?;
+    let forced = forced(plan, &keys, opts.force.as_ref(), &labels)?;
     store.register(&keys.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     if let (Some(slurm), true, false) = (&opts.slurm, opts.detach, opts.dry_run) {
         let s = detached::submit(plan, &mut store, root, slurm, opts.workers.max(1), &keys, &forced)?;

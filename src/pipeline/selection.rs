@@ -1,22 +1,22 @@
 //! Which stages of a plan a run considers: `--only` (the matching cells' stages and all they depend on) and
 //! `--force` (the matching stages and all below them), by glob patterns over the stages' `cell/kind` labels.
 use super::graph::{Plan, Stage, short};
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use globset::{Glob, GlobMatcher};
 use std::collections::{BTreeMap, HashSet};
 
-/// A `--only` or `--force` pattern: a glob (`*` any run of characters, `?` one, `[..]` a class) over the whole
-/// label; a pattern without a wildcard matches any label containing it.
+/// A `--only` or `--force` pattern: a glob (`*` any run of characters, `?` one, `[..]` a class, `{a,b}`
+/// either) over the whole label; a pattern without a wildcard matches any label containing it.
 #[derive(Debug, Clone)]
-pub struct Pattern(GlobMatcher);
+pub struct Pattern(GlobMatcher, String);
 
 impl Pattern {
     /// Parses `pattern`; the error names it.
     pub fn new(pattern: &str) -> Result<Pattern> {
-        let wild = pattern.contains(['*', '?', '[']);
+        let wild = pattern.contains(['*', '?', '[', '{']);
         let glob = if wild { pattern.to_string() } else { format!("*{pattern}*") };
         let glob = Glob::new(&glob).with_context(|| format!("stage pattern {pattern:?}"))?;
-        Ok(Pattern(glob.compile_matcher()))
+        Ok(Pattern(glob.compile_matcher(), pattern.to_string()))
     }
 
     /// Whether `label` matches.
@@ -40,22 +40,35 @@ fn labelled(labels: &Labels, key: &str, pattern: &Pattern) -> bool {
     labels.get(key).is_some_and(|ls| ls.iter().any(|l| pattern.matches(l)))
 }
 
-/// The keys to consider: the matching cells' stages and all they depend on, in plan order.
-pub fn selected(plan: &Plan, only: Option<&Pattern>, labels: &Labels) -> Vec<String> {
-    let Some(p) = only else { return plan.order.clone() };
+/// An error unless `pattern` matches one of `keys`' labels (a pattern that selects nothing is a typo).
+fn check_matches(flag: &str, pattern: &Pattern, keys: &[String], labels: &Labels) -> Result<()> {
+    if keys.iter().any(|k| labelled(labels, k, pattern)) {
+        return Ok(());
+    }
+    let example = labels.values().flatten().next().map(String::as_str).unwrap_or("none");
+    bail!("{flag} {:?} matches no stage of the plan (labels read like {example:?})", pattern.1)
+}
+
+/// The keys to consider: the matching cells' stages and all they depend on, in plan order; an error if the
+/// pattern matches no stage.
+pub fn selected(plan: &Plan, only: Option<&Pattern>, labels: &Labels) -> Result<Vec<String>> {
+    let Some(p) = only else { return Ok(plan.order.clone()) };
+    check_matches("--only", p, &plan.order, labels)?;
     let mut want: HashSet<String> = plan.order.iter().filter(|k| labelled(labels, k, p)).cloned().collect();
     for k in plan.order.iter().rev() {
         if want.contains(k) {
             want.extend(plan.stages[k].upstream.iter().cloned());
         }
     }
-    plan.order.iter().filter(|k| want.contains(*k)).cloned().collect()
+    Ok(plan.order.iter().filter(|k| want.contains(*k)).cloned().collect())
 }
 
-/// The stages `--force` re-runs: the matching ones and everything below them.
-pub fn forced(plan: &Plan, keys: &[String], force: Option<&Pattern>, labels: &Labels) -> HashSet<String> {
-    let Some(p) = force else { return HashSet::new() };
-    keys.iter().filter(|k| labelled(labels, k, p)).flat_map(|k| plan.downstream(k)).collect()
+/// The stages `--force` re-runs: the matching ones and everything below them; an error if the pattern matches
+/// none of `keys`.
+pub fn forced(plan: &Plan, keys: &[String], force: Option<&Pattern>, labels: &Labels) -> Result<HashSet<String>> {
+    let Some(p) = force else { return Ok(HashSet::new()) };
+    check_matches("--force", p, keys, labels)?;
+    Ok(keys.iter().filter(|k| labelled(labels, k, p)).flat_map(|k| plan.downstream(k)).collect())
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use crate::config::FULL;
 use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
 use crate::pipeline::store::read::ExperimentRecord;
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use data::ResultRow;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -140,6 +140,10 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
               its upstream keys; `oneshot-lab why KEY` shows a stage's inputs.\n";
     write("index.md", &index)?;
 
+    if out.exists() && !out.join("index.md").is_file() {
+        crate::fsio::remove_dir_if_present(&staging)?;
+        bail!("{} exists and is not a report (no index.md): refusing to replace it", out.display());
+    }
     crate::fsio::publish_dir(&staging, out)?;
     Ok(())
 }

@@ -236,8 +236,14 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
             policy.losses(&batch, true)
         };
         let total = config.loss.total(&l);
+        let [bc, inverse, point, sum] = window.add(&l, &total);
+        if ![bc, inverse, point, sum].iter().all(|v| v.is_finite()) {
+            bail!(
+                "training step {step}: the loss is not finite (total {sum}; bc {bc}, inverse {inverse}, point \
+                 {point}); stopped before its optimiser step"
+            );
+        }
         opt.backward_step(&total);
-        window.add(&l, &total);
         if step % config.val_interval == 0 || step == config.steps {
             curve.push(window.take(step));
             let v = mean_losses(&policy, &val, &config.loss, step);
@@ -282,12 +288,14 @@ struct TrainWindow {
 }
 
 impl TrainWindow {
-    fn add(&mut self, l: &Losses, total: &Tensor) {
+    /// Adds one step's losses (bc, inverse, point, total) and returns them.
+    fn add(&mut self, l: &Losses, total: &Tensor) -> [f64; 4] {
         let v = [&l.bc, &l.inverse, &l.point, total].map(|t| t.detach().to_kind(Kind::Double).double_value(&[]));
         for (s, x) in self.sums.iter_mut().zip(v) {
             *s += x;
         }
         self.n += 1.0;
+        v
     }
 
     fn take(&mut self, step: u64) -> CurvePoint {

@@ -67,7 +67,7 @@ pub struct PretrainConfig {
 }
 
 impl Default for PretrainConfig {
-    /// The trunk of the README's learning recipe; the `localise` command's defaults too.
+    /// The trunk of the learning recipe (docs/research/recipe.md); the `localise` command's defaults too.
     fn default() -> Self {
         PretrainConfig { target: LocaliseTarget::Objects, steps: 2000, batch: 32, lr: 1e-3, augmentation: None }
     }

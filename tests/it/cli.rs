@@ -1,5 +1,5 @@
 //! The command line's handling of bad input: one clear error line and a non-zero exit.
-use crate::helpers::oneshot;
+use crate::helpers::{oneshot, scratch};
 
 #[test]
 fn unknown_robot_is_an_error_naming_it() {
@@ -98,4 +98,46 @@ fn a_train_config_with_a_pretrain_section_is_refused_naming_the_file() {
     assert!(err.contains("with_pretrain.toml") && err.contains("[pretrain] is a stage of experiment files"), "{err}");
     assert!(!dir.join("out").exists(), "nothing is written");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_experiment_name_that_leaves_the_report_folder_is_refused_and_nothing_outside_changes() {
+    let dir = scratch("cli-escape");
+    let store = dir.join("store");
+    std::fs::create_dir_all(store.join("artifacts").join("collect").join("abc")).unwrap();
+    std::fs::write(store.join("artifacts").join("collect").join("abc").join("kept.txt"), "data").unwrap();
+    for (name, shown) in [("../artifacts", "\"../artifacts\""), ("", "\"\""), ("/tmp/elsewhere", "\"/tmp/elsewhere\"")]
+    {
+        let file = dir.join("escape.toml");
+        std::fs::write(&file, format!("name = {name:?}\n[grid]\nsizes = []\nreferences = [\"random\"]\n")).unwrap();
+        for command in ["run", "plan", "report"] {
+            let out =
+                oneshot().args([command, file.to_str().unwrap(), "--store", store.to_str().unwrap()]).output().unwrap();
+            assert!(!out.status.success(), "{command} with name {name:?} succeeded");
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(err.contains(&format!("name = {shown}")) && err.contains("escape.toml"), "{command}: {err}");
+        }
+    }
+    assert_eq!(std::fs::read_to_string(store.join("artifacts/collect/abc/kept.txt")).unwrap(), "data");
+    assert!(!store.join("reports").exists(), "no report folder was written");
+    // gc --delete without the experiment files that say what to keep would remove everything: refused.
+    let out = oneshot().args(["gc", "--delete", "--store", store.to_str().unwrap()]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("gc --delete needs the experiment files"));
+    assert!(store.join("artifacts/collect/abc/kept.txt").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_stage_pattern_that_matches_nothing_is_an_error_naming_it() {
+    let dir = scratch("cli-patterns");
+    let store = dir.join("store");
+    for (flag, pattern) in [("--only", "n999-*"), ("--force", "*/tarin"), ("--only", "n32-[full")] {
+        let args = ["run", "experiments/smoke.toml", "--dry-run", flag, pattern, "--store", store.to_str().unwrap()];
+        let out = oneshot().args(args).output().unwrap();
+        assert!(!out.status.success(), "{flag} {pattern} succeeded");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(flag) && err.contains(pattern), "{flag} {pattern}: {err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

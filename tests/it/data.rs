@@ -1,7 +1,7 @@
 //! The dataset format and collection: round trips, determinism across worker counts, atomic output.
 use crate::helpers::scratch;
 use oneshot_lab::data::collect::collect;
-use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
+use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSharing};
 use oneshot_lab::data::manifest::Manifest;
 use oneshot_lab::data::trajectory::Trajectory;
 use oneshot_lab::fsio::staging_sibling;
@@ -119,10 +119,17 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
         Experiment { grid: oneshot_lab::config::Grid { nested: false, ..experiment.grid.clone() }, ..experiment };
     assert_eq!(collection_totals(&plan(&separate)), (4, 2 * (2 + 3) * 2), "grid.nested = false collects each size");
 
-    // The first two slots of the larger collection are, file for file, a separate collection of two slots.
+    // With a layout of its own per slot, the first two slots of the larger collection are, file for file, a
+    // separate collection of two slots (shared layouts draw from a pool sized by the collection, as the
+    // authors' separate collections of each size did).
+    let unique = |robot, per_task| {
+        let mut c = tiny(robot, vec![0, 6], per_task);
+        c.settings.layouts = LayoutSharing::Unique;
+        c
+    };
     for robot in [Robot::Sawyer, Robot::Panda] {
-        let big = collect(&tiny(robot, vec![0, 6], 3), &dir.join(format!("big-{robot}")), 2, false).unwrap();
-        let small = collect(&tiny(robot, vec![0, 6], 2), &dir.join(format!("small-{robot}")), 2, false).unwrap();
+        let big = collect(&unique(robot, 3), &dir.join(format!("big-{robot}")), 2, false).unwrap();
+        let small = collect(&unique(robot, 2), &dir.join(format!("small-{robot}")), 2, false).unwrap();
         assert_eq!(big.trajectories.len(), 6);
         for e in &small.trajectories {
             let a = std::fs::read(dir.join(format!("small-{robot}")).join(&e.file)).unwrap();

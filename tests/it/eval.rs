@@ -104,12 +104,14 @@ fn daml_auxiliary_hands_the_agent_to_the_scripted_expert_and_needs_a_pose_head()
 #[test]
 fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames() {
     use oneshot_lab::data::collect::collect;
-    use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
+    use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSharing};
+    use oneshot_lab::data::manifest::Manifest;
     use oneshot_lab::sim::robot::Robot;
     use oneshot_lab::train::pretrain::{LocaliseConfig, LocaliseTarget, localise};
     let _guard = torch_rng();
     let dir = scratch("eval-localise");
-    let settings = CollectSettings { tasks: vec![1], ..CollectSettings::default() };
+    // Each slot a layout of its own, so that every fifth trajectory is held out.
+    let settings = CollectSettings { tasks: vec![1], layouts: LayoutSharing::Unique, ..CollectSettings::default() };
     let collection = CollectConfig { per_task: 20, world: world(), settings, ..CollectConfig::paper(Robot::Panda) };
     collect(&collection, &dir.join("panda"), 2, false).unwrap();
     let config = LocaliseConfig {
@@ -170,6 +172,24 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
     for (name, t) in &trunk {
         assert!(t.equal(&saved[&name["backbone.".len()..]]), "{name}");
     }
+
+    // Shared layouts are held out by environment: every trajectory of an environment on one side.
+    let shared = CollectConfig {
+        settings: CollectSettings { layouts: LayoutSharing::Shared, ..collection.settings.clone() },
+        ..collection.clone()
+    };
+    collect(&shared, &dir.join("shared"), 2, false).unwrap();
+    let envs: Vec<u64> =
+        Manifest::load(&dir.join("shared")).unwrap().trajectories.iter().map(|e| e.environment.unwrap()).collect();
+    let held = envs.iter().filter(|&&e| e % 5 == 0).count();
+    assert!(held > 0 && held < envs.len(), "{envs:?}");
+    let r = localise(
+        &dir.join("shared"),
+        &LocaliseConfig { steps: 1, report_every: 1, ..config.clone() },
+        tch::Device::Cpu,
+    )
+    .unwrap();
+    assert_eq!((r.train_frames, r.held_out_frames), (envs.len() - held, held));
 
     let missing = localise(&dir.join("nowhere"), &config, tch::Device::Cpu).unwrap_err();
     assert!(format!("{missing:#}").contains("nowhere"), "{missing:#}");

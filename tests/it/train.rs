@@ -125,6 +125,12 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
         );
     }
 
+    // A step size that blows the weights up: training stops at the first non-finite loss, naming the step.
+    let blown = TrainConfig { steps: 10, val_interval: 10, checkpoint_interval: 10, lr: 1e30, ..config.clone() };
+    let err = train(&model, &blown, &TrainRun { out: &dir.join("blown"), ..run }).unwrap_err().to_string();
+    assert!(err.contains("training step") && err.contains("the loss is not finite"), "{err}");
+    assert!(!dir.join("blown").join("model.safetensors").exists(), "no final weights of a diverged run");
+
     let too_long = ModelConfig { context_frames: 500, ..model };
     let err = train(&too_long, &config, &TrainRun { out: &dir.join("other"), ..run }).unwrap_err();
     assert!(err.to_string().contains("model.context_frames = 500"), "{err}");

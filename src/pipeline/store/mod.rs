@@ -206,6 +206,20 @@ impl Store {
         })
     }
 
+    /// Keys of the stages an attempt holds now: a live process on this host, or any holder elsewhere (a Slurm job
+    /// or another machine, which this one cannot check).
+    pub fn held_stages(&self) -> Result<Vec<String>> {
+        let mut stmt = self.conn.prepare("SELECT DISTINCT stage_key FROM attempts WHERE status = 'running'")?;
+        let keys = stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
+        let mut held = Vec::new();
+        for key in keys {
+            if self.live_attempt(&key)?.is_some() {
+                held.push(key);
+            }
+        }
+        Ok(held)
+    }
+
     fn live_attempt(&self, key: &str) -> Result<Option<(String, i64)>> {
         let row: Option<(String, i64)> = self
             .conn
