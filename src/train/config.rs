@@ -225,8 +225,8 @@ pub fn check_precision(model: &ModelConfig, train: &TrainConfig) -> Result<()> {
     let supported = model.architecture.registration().is_none_or(|r| r.bf16);
     if train.precision == Precision::Bf16 && !supported {
         bail!(
-            "train.precision = \"bf16\" is not supported by model.architecture = {:?}: its meta-learning step is \
-             not faithful in bf16; use \"fp32\"",
+            "train.precision = \"bf16\" is not supported by model.architecture = {:?}: its gradient is not \
+             faithful in bf16 (tests/it/precision.rs); use \"fp32\"",
             model.architecture.0
         );
     }
