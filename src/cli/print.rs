@@ -59,4 +59,19 @@ pub fn print_probe(r: &ProbeReport) {
             );
         }
     }
+    if let Some(f) = r.first_target {
+        println!("first target (position 0): which object of its own scene it heads for, by bearing from the gripper");
+        println!("{:<8} {:>13} {:>13} {:>8} {:>26}", "", "demonstrated", "another", "still", "nearer the demo's scene");
+        for (who, c) in [("policy", f.policy), ("expert", f.expert)] {
+            let pct = |k: usize| format!("{:.1}%", 100.0 * k as f64 / c.windows.max(1) as f64);
+            println!(
+                "{who:<8} {:>13} {:>13} {:>8} {:>26}",
+                pct(c.demonstrated),
+                pct(c.other),
+                pct(c.still),
+                pct(c.demonstration_scene)
+            );
+        }
+        println!("(heading for one of four objects at random: 25% demonstrated)");
+    }
 }

@@ -3,7 +3,7 @@ use super::default_workers;
 use super::options::{FrameArgs, parse_robot};
 use anyhow::{Context, Result, bail};
 use oneshot_lab::data::collect;
-use oneshot_lab::data::collect_config::CollectConfig;
+use oneshot_lab::data::collect_config::{CollectConfig, LayoutSharing};
 use oneshot_lab::sim::env::{Env, GripperYaw, WorldConfig};
 use oneshot_lab::sim::expert_check::{ExpertReport, expert_check as check};
 use oneshot_lab::sim::robot::Robot;
@@ -73,8 +73,23 @@ pub struct CollectArgs {
     /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
     #[arg(long)]
     pub close_on_arrival: bool,
+    /// Whether layouts recur under several tasks (default: collect.layouts, the authors' `shared`).
+    #[arg(long, value_enum)]
+    pub layouts: Option<Layouts>,
+    /// Environments in the pool of shared layouts (default: collect.layout_pool, half the trajectories).
+    #[arg(long)]
+    pub layout_pool: Option<usize>,
     #[command(flatten)]
     pub frames: FrameArgs,
+}
+
+/// How a collection's layouts are drawn (`collect.layouts`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Layouts {
+    /// Each slot draws an environment from a pool with replacement (the authors').
+    Shared,
+    /// Every slot has a layout of its own.
+    Unique,
 }
 
 /// Arguments of the `contact-sheet` command.
@@ -120,6 +135,13 @@ pub fn collect(a: CollectArgs) -> Result<()> {
     s.tasks = a.tasks.unwrap_or(s.tasks.clone());
     s.jpeg_quality = a.jpeg_quality.unwrap_or(s.jpeg_quality);
     s.action_noise = a.action_noise.unwrap_or(s.action_noise);
+    if let Some(layouts) = a.layouts {
+        s.layouts = match layouts {
+            Layouts::Shared => LayoutSharing::Shared,
+            Layouts::Unique => LayoutSharing::Unique,
+        };
+    }
+    s.layout_pool = a.layout_pool.or(s.layout_pool);
     let manifest = collect::collect(&config, &a.out, a.workers.unwrap_or_else(default_workers), true)?;
     let retries: usize = manifest.trajectories.iter().map(|e| e.attempts - 1).sum();
     println!(

@@ -22,6 +22,8 @@ pub struct Batch {
     pub actions: Vec<f32>,
     pub points: Vec<f32>,
     pub poses: Vec<f32>,
+    /// Each sample's demonstration and agent trajectory ([`Sample::source`]).
+    pub sources: Vec<[usize; 2]>,
 }
 
 /// A batch's frames, in the form its samples were drawn in.
@@ -54,6 +56,7 @@ impl Batch {
     ) -> Batch {
         let size = samples.len();
         let (mut actions, mut points, mut poses) = (vec![], vec![], vec![]);
+        let sources = samples.iter().map(|s| s.source).collect();
         let (mut context, mut agent, mut bytes, mut agent_bytes, mut draws) = (vec![], vec![], vec![], vec![], vec![]);
         let mut jitter = false;
         for s in samples {
@@ -90,7 +93,7 @@ impl Batch {
             );
             BatchFrames::Raw { context: host(&bytes, tc), agent: host(&agent_bytes, ta), draws, jitter }
         };
-        Batch { size, frames, actions, points, poses }
+        Batch { size, frames, actions, points, poses, sources }
     }
 
     /// Copies the batch to `device` (augmenting raw frames there) with the shapes `model` and frames of

@@ -167,6 +167,11 @@ impl PairDataset {
         })
     }
 
+    /// The demonstration and the agent trajectory a sample was drawn from ([`Sample::source`]).
+    pub fn trajectory(&self, source: [usize; 2]) -> (&Trajectory, &Trajectory) {
+        (&self.demos[source[0]], &self.agents[source[1]])
+    }
+
     /// Whether every frame was decoded when opening (else each use decodes its JPEG).
     pub fn frames_in_memory(&self) -> bool {
         self.decoded.is_some()
@@ -294,7 +299,7 @@ impl PairDataset {
             .collect();
         let [col, row] = agent.eef_pixel[start + model.agent_frames - 1];
         let point = [2.0 * col / w as f32 - 1.0, 2.0 * row / h as f32 - 1.0];
-        Ok(Sample { task, context, agent: frames, actions, point, poses: agent.grasp_and_drop() })
+        Ok(Sample { task, source: trajectory, context, agent: frames, actions, point, poses: agent.grasp_and_drop() })
     }
 }
 
@@ -329,6 +334,8 @@ pub enum FrameData {
 /// One training sample.
 pub struct Sample {
     pub task: usize,
+    /// The demonstration and the agent trajectory it was drawn from (see [`PairDataset::trajectory`]).
+    pub source: [usize; 2],
     /// The demonstrator's `Tc` frames.
     pub context: FrameData,
     /// The agent's `Ta` frames.

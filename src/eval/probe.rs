@@ -1,9 +1,10 @@
 //! The open-loop probe: a trained policy's actions on held-out expert windows against the expert's, per action
 //! dimension. It separates "the network predicts the wrong action" from "the closed loop goes wrong".
+use super::choice::{ChoiceCounts, FirstScene};
 use crate::data::loader::{AugmentAt, build_batch};
 use crate::data::pairs::{PairDataset, Split, Windows};
 use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
-use crate::sim::action::ACTION_DIM;
+use crate::sim::action::{ACTION_DIM, Action};
 use crate::train::TrainedPolicy;
 use anyhow::{Result, bail};
 use tch::{Device, Kind, Tensor};
@@ -25,6 +26,16 @@ pub struct ProbeReport {
     /// For a model with `model.pose_head`: the grasp and drop positions' mean absolute errors (metres, x y z
     /// of each) predicted from each window's first agent frame, and what predicting their means scores.
     pub poses_from_first_frame: Option<([f64; 6], [f64; 6])>,
+    /// For windows from each trajectory's start: which object the most likely first target heads for, and the
+    /// expert's own first action counted the same way (see [`super::choice`]).
+    pub first_target: Option<FirstTargets>,
+}
+
+/// The first targets' choice of object, the policy's and the expert's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FirstTargets {
+    pub policy: ChoiceCounts,
+    pub expert: ChoiceCounts,
 }
 
 /// Errors at one window position, in normalised units.
@@ -58,18 +69,15 @@ pub fn open_loop(
     let device = policy.vars.device();
     let (mut preds, mut samples, mut targets) = (Vec::new(), Vec::new(), Vec::new());
     let (mut poses, mut true_poses) = (Vec::new(), Vec::new());
+    let mut first = FirstTargets { policy: ChoiceCounts::default(), expert: ChoiceCounts::default() };
     let mut done = 0;
     for k in 0.. {
         if done >= windows {
             break;
         }
         let n = batch.min(windows - done);
-        let b = build_batch(data, split, model, n, seed, k, placement, None, AugmentAt::Host)?.to_device(
-            model,
-            data.height,
-            data.width,
-            device,
-        );
+        let host = build_batch(data, split, model, n, seed, k, placement, None, AugmentAt::Host)?;
+        let b = host.to_device(model, data.height, data.width, device);
         let steps = b.actions.size()[1];
         let out = tch::no_grad(|| policy.policy.forward_t(&b.context, &b.agent, false));
         let trained = MixtureParams {
@@ -77,7 +85,11 @@ pub fn open_loop(
             log_scales: out.actions.log_scales.narrow(1, 0, steps),
             logits: out.actions.logits.narrow(1, 0, steps),
         };
-        preds.push(mixture_mode(&trained).to_device(Device::Cpu));
+        let mode = mixture_mode(&trained).to_device(Device::Cpu);
+        if placement == Windows::FromStart {
+            count_first_targets(data, &host.sources, &mode, &b.actions.to_device(Device::Cpu), &mut first);
+        }
+        preds.push(mode);
         samples.push(mixture_sample(&trained).to_device(Device::Cpu));
         targets.push(b.actions.to_device(Device::Cpu));
         if let Some(p) = &out.poses {
@@ -107,7 +119,29 @@ pub fn open_loop(
         mean_baseline: mae(&mean, &target),
         by_position,
         poses_from_first_frame,
+        first_target: (placement == Windows::FromStart).then_some(first),
     })
+}
+
+/// Adds each window's first target (position 0 of `mode`, and of the expert's `actions`) to the counts.
+fn count_first_targets(
+    data: &PairDataset,
+    sources: &[[usize; 2]],
+    mode: &Tensor,
+    actions: &Tensor,
+    counts: &mut FirstTargets,
+) {
+    let plane = |t: &Tensor, i: usize| {
+        let row = Vec::<f32>::try_from(t.get(i as i64).get(0).to_kind(Kind::Float)).expect("a float action row");
+        let pos = Action::from_normalized(&row).pos();
+        [pos[0], pos[1]]
+    };
+    for (i, &source) in sources.iter().enumerate() {
+        let (demo, agent) = data.trajectory(source);
+        let scene = FirstScene::of(demo, agent);
+        counts.policy.add(&scene, plane(mode, i));
+        counts.expert.add(&scene, plane(actions, i));
+    }
 }
 
 fn pose_mae(pred: &Tensor, target: &Tensor) -> [f64; 6] {

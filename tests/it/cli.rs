@@ -51,6 +51,31 @@ fn collect_with_a_task_out_of_range_is_an_error_naming_it() {
 }
 
 #[test]
+fn collect_draws_its_layouts_as_told_and_refuses_a_pool_without_sharing() {
+    let dir = scratch("cli-collect-layouts");
+    let args = |out: &str, layouts: &str, pool: &str| {
+        let out = dir.join(out);
+        let base =
+            ["collect", "--robot", "panda", "--tasks", "0,5", "--per-task", "2", "--height", "32", "--width", "40"];
+        let mut cmd = oneshot();
+        cmd.args(base).args(["--layouts", layouts, "--layout-pool", pool, "--workers", "1", "--out"]).arg(out);
+        cmd.output().unwrap()
+    };
+    // A pool of one environment: all four slots of both tasks draw it.
+    let out = args("shared", "shared", "1");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("shared").join("manifest.json")).unwrap()).unwrap();
+    let environments: Vec<_> = manifest["trajectories"].as_array().unwrap().iter().map(|e| &e["environment"]).collect();
+    assert_eq!(environments.len(), 4);
+    assert!(environments.iter().all(|e| e.as_u64() == Some(0)), "{environments:?}");
+    let out = args("unique", "unique", "3");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("collect.layout_pool"));
+    assert!(!dir.join("unique").exists());
+}
+
+#[test]
 fn commands_that_read_a_store_refuse_a_folder_without_one() {
     let dir = std::env::temp_dir().join(format!("oneshot-test-cli-nostore-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -62,6 +62,11 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     let data = PairDataset::open(&dir.join("sawyer"), &dir.join("panda"), config.val_fraction, None).unwrap();
     let report = open_loop(&trained, &data, Split::Train, Windows::FromStart, 5, 2, 0).unwrap();
     assert_eq!((report.windows, report.actions, report.by_position.len()), (5, 30, 6));
+    // From each trajectory's start, the expert's own first action heads for the demonstrated object: the
+    // object-choice measure reads the expert right before it is used on a policy.
+    let choice = report.first_target.expect("windows from the start count first targets");
+    assert_eq!((choice.policy.windows, choice.expert.windows, choice.expert.demonstrated), (5, 5, 5));
+    assert_eq!(choice.policy.demonstrated + choice.policy.other + choice.policy.still, 5);
     for d in 0..8 {
         let mean_of =
             |f: fn(&PositionErrors) -> [f64; 8]| report.by_position.iter().map(|p| f(p)[d]).sum::<f64>() / 6.0;
