@@ -27,6 +27,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Run(a) => cli::orchestrate::run(a),
         Command::RunStage(a) => cli::orchestrate::run_stage(a),
         Command::Plan(a) => cli::orchestrate::plan(a),
+        Command::Config(a) => cli::config::config(a),
         Command::Why(a) => cli::inspect::why(a),
         Command::Status(a) => cli::inspect::status(a),
         Command::Cancel(a) => cli::orchestrate::cancel(a),

@@ -3,6 +3,7 @@
 //! configuration structs), so no default is written twice.
 use super::bench::{BenchEvalArgs, BenchLoaderArgs, BenchPlanArgs, BenchTrainArgs};
 use super::bench_world::BenchWorldArgs;
+use super::config::ConfigArgs;
 use super::eval::{EvalArgs, LocaliseArgs, ProbeArgs};
 use super::inspect::{GcArgs, QueryArgs, ReportArgs, StatusArgs, WhyArgs};
 use super::orchestrate::{CancelArgs, PlanArgs, RunArgs, RunStageArgs};
@@ -42,6 +43,9 @@ pub enum Command {
     RunStage(RunStageArgs),
     /// The grid as cells x stages: cached, to run or failed, with an estimate of the time left.
     Plan(PlanArgs),
+    /// The resolved configuration of an experiment file or of one of its cells, with the values that differ
+    /// from the paper's defaults marked.
+    Config(ConfigArgs),
     /// Why a stage would run: its inputs against the nearest cached stage of its kind.
     Why(WhyArgs),
     /// Stages by kind and status, running attempts and Slurm jobs, and recent failures (records what finished

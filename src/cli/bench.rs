@@ -452,7 +452,7 @@ fn bench_plan(cells: usize) -> Result<()> {
     let file = dir.join("bench_plan.toml");
     std::fs::write(&file, text)?;
     let store_dir = dir.join("runs");
-    let (_, plan) = load_plan(&file, None)?;
+    let (_, plan) = load_plan(&file, &Default::default())?;
     let mut store = Store::open(&store_dir)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     // Benchmark set-up only: every stage is recorded finished, with no results, in an empty artifact folder.

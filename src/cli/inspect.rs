@@ -239,7 +239,7 @@ pub fn gc(a: GcArgs) -> Result<()> {
         bail!("gc --delete needs the experiment files whose stages it keeps; with none it would remove every artifact");
     }
     let plans =
-        a.files.iter().map(|f| load_plan(f, a.store.profile.as_deref()).map(|(_, p)| p)).collect::<Result<Vec<_>>>()?;
+        a.files.iter().map(|f| load_plan(f, &a.store.resolution()).map(|(_, p)| p)).collect::<Result<Vec<_>>>()?;
     let mut store = Store::open_existing(&a.store.dir.store)?;
     let unused = unused_artifacts(&a.store.dir.store, &plans, &store.held_stages()?)?;
     for p in &unused {
@@ -257,7 +257,7 @@ pub fn gc(a: GcArgs) -> Result<()> {
 
 /// Rebuilds an experiment's tables and figures from the store alone.
 pub fn report(a: ReportArgs) -> Result<()> {
-    let experiment = Experiment::load(&a.file, a.store.profile.as_deref())?;
+    let experiment = Experiment::load(&a.file, &a.store.resolution())?;
     let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.dir.store, &experiment.name));
     let store = Store::open_existing(&a.store.dir.store)?;
     oneshot_lab::report::write_report(&store, &experiment.name, &out)?;

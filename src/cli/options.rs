@@ -1,5 +1,6 @@
 //! Options several commands share: the results store, the frames of rendered scenes, and the parser of names in
 //! the configuration's spelling.
+use oneshot_lab::config::{Override, Resolution};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::camera::Visuals;
 use oneshot_lab::sim::env::WorldConfig;
@@ -17,14 +18,39 @@ pub struct StoreDir {
     pub store: PathBuf,
 }
 
-/// The results store and the experiment's scale profile.
+/// How an experiment file is resolved: its scale profile and `--set` overrides.
+#[derive(clap::Args)]
+pub struct ResolutionArgs {
+    /// Scale profile defined in the experiment file (e.g. `cpu`).
+    #[arg(long)]
+    pub profile: Option<String>,
+    /// Sets one key of the experiment file, after the profile (repeatable), e.g. `--set train.steps=50`; checked
+    /// like the file.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<Override>,
+}
+
+impl ResolutionArgs {
+    /// The profile and overrides to resolve the experiment file with.
+    pub fn resolution(&self) -> Resolution {
+        Resolution { profile: self.profile.clone(), overrides: self.set.clone() }
+    }
+}
+
+/// The results store, and how the experiment file is resolved.
 #[derive(clap::Args)]
 pub struct StoreArgs {
     #[command(flatten)]
     pub dir: StoreDir,
-    /// Scale profile defined in the experiment file (e.g. `cpu`).
-    #[arg(long)]
-    pub profile: Option<String>,
+    #[command(flatten)]
+    pub file: ResolutionArgs,
+}
+
+impl StoreArgs {
+    /// The profile and overrides to resolve the experiment file with.
+    pub fn resolution(&self) -> Resolution {
+        self.file.resolution()
+    }
 }
 
 /// Frame size and visuals of rendered scenes (each defaults to the `[world]` default).

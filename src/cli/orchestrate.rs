@@ -2,14 +2,16 @@
 use super::default_workers;
 use super::options::StoreArgs;
 use anyhow::{Context, Result, bail};
-use oneshot_lab::config::{Experiment, Grid};
+use oneshot_lab::config::{Experiment, Grid, overrides};
 use oneshot_lab::pipeline::events::{RunEvent, RunEvents};
 use oneshot_lab::pipeline::graph::{Plan, short};
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::scheduler::{RunOptions, RunReport, run as run_plan};
 use oneshot_lab::pipeline::selection::{Pattern, display_name};
+use oneshot_lab::pipeline::slurm::queue::shell_quote;
 use oneshot_lab::pipeline::slurm::{SlurmOptions, detached, run_stage as run_one_stage};
 use oneshot_lab::pipeline::stages::{self, collection_totals};
+use oneshot_lab::pipeline::store::read::ExperimentRecord;
 use oneshot_lab::pipeline::store::{StageState, Store};
 use std::path::PathBuf;
 
@@ -91,11 +93,10 @@ impl RunEvents for PrintEvents {
 
 /// Runs what is missing, records the experiment's cells and (unless `--only` or a dry run) writes its report.
 pub fn run(a: RunArgs) -> Result<()> {
-    let profile = a.store.profile.as_deref();
-    let (experiment, plan) = load_plan(&a.file, profile)?;
+    let (experiment, plan) = load_plan(&a.file, &a.store.resolution())?;
     let slurm = a.slurm.then(|| SlurmOptions {
         file: a.file.clone(),
-        profile: a.store.profile.clone(),
+        resolution: a.store.resolution(),
         args: a.slurm_args.clone(),
         gpu_args: a.slurm_gpu_args.clone(),
     });
@@ -122,13 +123,13 @@ pub fn run(a: RunArgs) -> Result<()> {
         return Ok(());
     }
     let mut store = Store::open(root)?;
-    store.record_experiment(
-        &experiment.name,
-        &a.file.display().to_string(),
-        &experiment.description,
-        profile,
-        &plan.cells,
-    )?;
+    let record = ExperimentRecord {
+        file: a.file.display().to_string(),
+        description: experiment.description.clone(),
+        profile: a.store.file.profile.clone(),
+        overrides: overrides::spelled(&experiment.resolution.overrides),
+    };
+    store.record_experiment(&record, &experiment.name, &plan.cells)?;
     if opts.detach {
         return detached_summary(&experiment.name, &a, &report, &plan);
     }
@@ -173,7 +174,10 @@ fn detached_summary(name: &str, a: &RunArgs, report: &RunReport, plan: &Plan) ->
         println!("  refused {}: {e}", plan_stage(k));
     }
     let store = a.store.dir.store.display();
-    let profile = a.store.profile.as_ref().map(|p| format!(" --profile {p}")).unwrap_or_default();
+    let mut profile = a.store.file.profile.as_ref().map(|p| format!(" --profile {p}")).unwrap_or_default();
+    for o in &a.store.file.set {
+        profile += &format!(" --set {}", shell_quote(&o.to_string()));
+    }
     println!(
         "follow with `oneshot-lab status --store {store}`; when the jobs are done, `oneshot-lab run {}{profile} \
          --store {store}` records them and writes the report (`oneshot-lab cancel` stops them)",
@@ -187,7 +191,7 @@ fn detached_summary(name: &str, a: &RunArgs, report: &RunReport, plan: &Plan) ->
 
 /// Cancels the queued and running Slurm jobs of an experiment's stages and fails those stages.
 pub fn cancel(a: CancelArgs) -> Result<()> {
-    let (experiment, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
+    let (experiment, plan) = load_plan(&a.file, &a.store.resolution())?;
     let mut store = Store::open_existing(&a.store.dir.store)?;
     let keys = plan.order.iter().cloned().collect();
     let cancelled = detached::cancel(&mut store, &a.store.dir.store, &keys)?;
@@ -200,7 +204,7 @@ pub fn cancel(a: CancelArgs) -> Result<()> {
 
 /// Runs one stage of an experiment, as a Slurm job does.
 pub fn run_stage(a: RunStageArgs) -> Result<()> {
-    let (_, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
+    let (_, plan) = load_plan(&a.file, &a.store.resolution())?;
     run_one_stage(&plan, &a.key, &a.store.dir.store, a.workers.unwrap_or_else(default_workers))
 }
 
@@ -215,7 +219,7 @@ fn state_word(s: &StageState) -> &'static str {
 
 /// Prints the grid as cells x stages with their state and an estimate of the time left.
 pub fn plan(a: PlanArgs) -> Result<()> {
-    let (experiment, plan) = load_plan(&a.file, a.store.profile.as_deref())?;
+    let (experiment, plan) = load_plan(&a.file, &a.store.resolution())?;
     let mut store = Store::open(&a.store.dir.store)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     println!("{}: {} cells, {} distinct stages", experiment.name, plan.cells.len(), plan.stages.len());

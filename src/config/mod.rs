@@ -1,7 +1,8 @@
 //! Experiment files: TOML with defaults for every stage, named variants (overrides), a grid of dataset sizes,
 //! variants and seeds, an optional `include` of a base file and named scale `profiles`.
 //!
-//! Resolution order (later wins): included file, this file, the chosen profile, then a cell's variant.
+//! Resolution order (later wins): included file, this file, the chosen profile, `--set` overrides, then a cell's
+//! variant.
 use crate::eval::EvalConfig;
 use crate::model::config::ModelConfig;
 use crate::sim::env::WorldConfig;
@@ -14,9 +15,25 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 pub use crate::data::collect_config::CollectSettings;
+pub use overrides::Override;
 
 mod file;
+pub mod overrides;
 mod rules;
+
+/// How an experiment file is resolved: an optional scale profile, then `--set` overrides, in that order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Resolution {
+    pub profile: Option<String>,
+    pub overrides: Vec<Override>,
+}
+
+impl Resolution {
+    /// The file as written, with only a profile (or none).
+    pub fn profile(profile: Option<&str>) -> Resolution {
+        Resolution { profile: profile.map(str::to_string), overrides: Vec::new() }
+    }
+}
 
 /// Reference policies that are evaluated once per experiment through the same path as the models.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -112,13 +129,17 @@ pub struct Experiment {
     pub grid: Grid,
     pub base: CellConfig,
     pub cells: Vec<Cell>,
+    /// The profile and overrides it was resolved with.
+    pub resolution: Resolution,
 }
 
 impl Experiment {
-    /// Loads `path` with an optional scale profile; every error names the file and the key (and a line).
-    pub fn load(path: &Path, profile: Option<&str>) -> Result<Experiment> {
+    /// Loads `path` with an optional scale profile and overrides; every error names the file and the key (and a
+    /// line), or the override.
+    pub fn load(path: &Path, resolution: &Resolution) -> Result<Experiment> {
         let (mut table, text) = read_table(path, 0)?;
         let file = path.display().to_string();
+        let profile = resolution.profile.as_deref();
         if let Some(p) = profile {
             let profiles = table.get("profiles").and_then(|v| v.as_table());
             let Some(over) = profiles.and_then(|t| t.get(p)).and_then(|v| v.as_table()).cloned() else {
@@ -130,10 +151,17 @@ impl Experiment {
             };
             merge(&mut table, &over);
         }
-        let what = match profile {
+        for o in &resolution.overrides {
+            check_alone(o)?;
+            o.apply(&mut table)?;
+        }
+        let mut what = match profile {
             Some(p) => format!("the file with profile `{p}`"),
             None => "the file".to_string(),
         };
+        if !resolution.overrides.is_empty() {
+            what = format!("{what} and {}", overrides::spelled(&resolution.overrides));
+        }
         let shape: FileShape = toml::Value::Table(table).try_into().map_err(|e| located(e, &file, &what, &text))?;
         let name = shape
             .name
@@ -188,8 +216,35 @@ impl Experiment {
                 }
             }
         }
-        Ok(Experiment { name, description, grid, base, cells })
+        Ok(Experiment { name, description, grid, base, cells, resolution: resolution.clone() })
     }
+}
+
+/// Types one override on its own (a section key against its section, a variant's key against the sections, a
+/// top-level key against the file's shape), so that an unknown key or a wrong type is reported against the
+/// override itself rather than a line of the file.
+fn check_alone(o: &Override) -> Result<()> {
+    const SECTIONS: [&str; 6] = ["world", "collect", "model", "pretrain", "train", "eval"];
+    let in_cell = match o.path.as_slice() {
+        [variants, _, rest @ ..] if variants == "variants" && !rest.is_empty() => Some(rest),
+        [section, ..] if SECTIONS.contains(&section.as_str()) => Some(o.path.as_slice()),
+        _ => None,
+    };
+    let mut table = toml::Table::new();
+    let typed = match in_cell {
+        Some(path) => {
+            if !SECTIONS.contains(&path[0].as_str()) {
+                bail!("--set {o}: `{}` is not a section (sections: {})", path[0], SECTIONS.join(", "));
+            }
+            Override { path: path.to_vec(), value: o.value.clone() }.apply(&mut table)?;
+            toml::Value::Table(table).try_into::<CellConfig>().map(drop)
+        }
+        None => {
+            o.apply(&mut table)?;
+            toml::Value::Table(table).try_into::<FileShape>().map(drop)
+        }
+    };
+    typed.map_err(|e| anyhow::anyhow!("--set {o}: {}", e.message()))
 }
 
 impl CellConfig {
@@ -219,7 +274,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("e.toml");
         std::fs::write(&path, text).unwrap();
-        let e = Experiment::load(&path, None);
+        let e = Experiment::load(&path, &Resolution::default());
         std::fs::remove_dir_all(&dir).unwrap();
         e
     }

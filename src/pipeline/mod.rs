@@ -11,14 +11,14 @@ pub mod slurm;
 pub mod stages;
 pub mod store;
 
-use crate::config::Experiment;
+use crate::config::{Experiment, Resolution};
 use anyhow::Result;
 use graph::Plan;
 use std::path::Path;
 
-/// Loads an experiment file (with an optional scale profile) and expands it into its plan.
-pub fn load_plan(file: &Path, profile: Option<&str>) -> Result<(Experiment, Plan)> {
-    let experiment = Experiment::load(file, profile)?;
+/// Loads an experiment file (with an optional scale profile and overrides) and expands it into its plan.
+pub fn load_plan(file: &Path, resolution: &Resolution) -> Result<(Experiment, Plan)> {
+    let experiment = Experiment::load(file, resolution)?;
     let plan = stages::plan(&experiment);
     Ok((experiment, plan))
 }

@@ -54,7 +54,7 @@ fn architecture_rows<'a>(rows: &[&'a ResultRow]) -> Vec<&'a ResultRow> {
 pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     let cells = store.cells(experiment)?;
     let rows = data::rows(&cells);
-    let ExperimentRecord { file, description, profile } = store.experiment(experiment)?;
+    let ExperimentRecord { file, description, profile, overrides } = store.experiment(experiment)?;
     let staging = crate::fsio::staging_sibling(out)?;
     crate::fsio::remove_dir_if_present(&staging)?;
     std::fs::create_dir_all(&staging).with_context(|| format!("creating {}", staging.display()))?;
@@ -107,11 +107,12 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     }
     let _ = writeln!(
         index,
-        "Experiment file `{file}`{}; code version `{CODE_VERSION}`.",
+        "Experiment file `{file}`{}{}; code version `{CODE_VERSION}`.",
         match &profile {
             Some(p) => format!(", profile `{p}`"),
             None => String::new(),
-        }
+        },
+        if overrides.is_empty() { String::new() } else { format!(", overrides `{overrides}`") }
     );
     index += "Every number below is recomputed from the results store (`oneshot.sqlite`); rates are pooled over \
               training seeds with 95% Wilson score intervals (`table1.csv` also has the mean over seeds with a \

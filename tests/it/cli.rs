@@ -166,3 +166,102 @@ fn a_stage_pattern_that_matches_nothing_is_an_error_naming_it() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn config_prints_the_resolved_file_with_overrides_and_marks_what_differs_from_the_defaults() {
+    let args = ["config", "experiments/smoke.toml", "--set", "train.steps=50", "--set", "eval.episodes=4"];
+    let out = oneshot().args(args).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    for line in
+        ["# --set train.steps=50", "# --set eval.episodes=4", "steps = 50  # default: ", "episodes = 4  # default: "]
+    {
+        assert!(text.contains(line), "no `{line}` in:\n{text}");
+    }
+    // A key left at its default carries no mark.
+    assert!(text.lines().any(|l| l == "inverse = 1.0"), "{text}");
+
+    // One cell, as JSON: the variant's own change is listed with its default.
+    let args = ["config", "experiments/smoke.toml", "--cell", "n32-no_inverse-s0", "--format", "json"];
+    let out = oneshot().args(args).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["config"]["train"]["loss"]["inverse"], serde_json::json!(0.0));
+    assert_eq!(json["changed"]["train.loss.inverse"]["default"], serde_json::json!(1.0));
+    assert_eq!(json["changed"]["train.steps"]["value"], serde_json::json!(300));
+
+    let out = oneshot().args(["config", "experiments/smoke.toml", "--cell", "n32-nope-s0"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no cell `n32-nope-s0`"));
+}
+
+#[test]
+fn a_bad_override_fails_like_a_bad_file_naming_the_key() {
+    let dir = scratch("cli-bad-set");
+    let store = dir.join("store");
+    for (set, named) in [
+        ("train.stepz=5", "stepz"),
+        ("train.steps=many", "train.steps"),
+        ("train.lr=-1", "train.lr"),
+        ("model.dropout=1.5", "model.dropout"),
+        ("nosuchsection.x=1", "nosuchsection"),
+        ("train.steps.x=1", "train.steps"),
+        ("variants.no_inverse.train.lr=nan", "train.lr"),
+        ("train.lr", "KEY=VALUE"),
+    ] {
+        for command in ["config", "plan", "run"] {
+            let mut args = vec![command, "experiments/smoke.toml", "--set", set];
+            if command != "config" {
+                args.extend(["--dry-run", "--store", store.to_str().unwrap()]);
+                if command == "plan" {
+                    args.retain(|a| *a != "--dry-run");
+                }
+            }
+            let out = oneshot().args(&args).output().unwrap();
+            assert!(!out.status.success(), "{command} --set {set} succeeded");
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(err.contains(named), "{command} --set {set}: {err}");
+        }
+    }
+    assert!(!store.join("artifacts").exists(), "nothing was run");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn overrides_change_the_keys_they_touch_and_are_recorded_with_the_experiment() {
+    let dir = scratch("cli-set-run");
+    let store = dir.join("store");
+    let file = dir.join("refs.toml");
+    std::fs::write(
+        &file,
+        "name = \"refs\"\n[world.image]\nheight = 32\nwidth = 40\n[eval]\nepisodes = 2\nhorizon = 3\nbatch = 2\n\
+         [grid]\nsizes = []\nreferences = [\"random\"]\n",
+    )
+    .unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec!["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1"];
+        args.extend(extra);
+        let out = oneshot().args(&args).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    run(&["--set", "eval.horizon=4"]);
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    let overrides: String =
+        conn.query_row("SELECT overrides FROM experiments WHERE name = 'refs'", [], |r| r.get(0)).unwrap();
+    assert_eq!(overrides, "--set eval.horizon=4");
+    let index = std::fs::read_to_string(store.join("reports/refs/index.md")).unwrap();
+    assert!(index.contains("overrides `--set eval.horizon=4`"), "{index}");
+    let steps: i64 = conn.query_row("SELECT MAX(steps) FROM episodes", [], |r| r.get(0)).unwrap();
+    assert!(steps <= 4, "episodes ran under the overridden horizon: {steps} steps");
+
+    // The same override again is cached; without it the file's own horizon is a new evaluation.
+    let plan = |extra: &[&str]| {
+        let mut args = vec!["plan", file.to_str().unwrap(), "--store", store.to_str().unwrap()];
+        args.extend(extra);
+        String::from_utf8_lossy(&oneshot().args(&args).output().unwrap().stdout).into_owned()
+    };
+    assert!(plan(&["--set", "eval.horizon=4"]).contains("0 stages to run"), "{}", plan(&["--set", "eval.horizon=4"]));
+    assert!(plan(&[]).contains("1 stages to run"), "{}", plan(&[]));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -93,7 +93,7 @@ fn out_of_range_task_is_an_error_naming_it() {
 
 #[test]
 fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collection() {
-    use oneshot_lab::config::Experiment;
+    use oneshot_lab::config::{Experiment, Resolution};
     use oneshot_lab::data::pairs::{PairDataset, Split};
     use oneshot_lab::pipeline::stages::{Job, collection_totals, plan};
     let dir = scratch("data-nested");
@@ -103,7 +103,7 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
 
     // A size spreads over the collected tasks: 4 and 6 trajectories of 2 tasks are 2 and 3 slots per task.
     // One collection per robot, of 3 slots per task; the smaller cell's training names the 2 slots it uses.
-    let experiment = Experiment::load(&file, None).unwrap();
+    let experiment = Experiment::load(&file, &Resolution::default()).unwrap();
     let nested = plan(&experiment);
     assert_eq!(collection_totals(&nested), (2, 2 * 3 * 2), "one collection per robot, 3 slots of 2 tasks each");
     let train_of = |cell: &str| {

@@ -1,6 +1,6 @@
 //! The shipped experiment files: every one loads at paper scale and under its `cpu` profile, and the paper's
 //! tables have their models.
-use oneshot_lab::config::Experiment;
+use oneshot_lab::config::{Experiment, Resolution};
 use oneshot_lab::eval::config::Control;
 use oneshot_lab::pipeline::graph::PlannedCell;
 use std::path::Path;
@@ -15,10 +15,11 @@ fn every_shipped_experiment_loads_with_and_without_its_profile() {
     files.sort();
     assert!(files.len() >= 5, "{files:?}");
     for file in &files {
-        let e = Experiment::load(file, None).unwrap_or_else(|err| panic!("{}: {err:#}", file.display()));
+        let e =
+            Experiment::load(file, &Resolution::default()).unwrap_or_else(|err| panic!("{}: {err:#}", file.display()));
         assert!(!e.cells.is_empty(), "{}", file.display());
         if std::fs::read_to_string(file).unwrap().contains("[profiles.cpu]") {
-            Experiment::load(file, Some("cpu"))
+            Experiment::load(file, &Resolution::profile(Some("cpu")))
                 .unwrap_or_else(|err| panic!("{} --profile cpu: {err:#}", file.display()));
         }
     }
@@ -27,7 +28,7 @@ fn every_shipped_experiment_loads_with_and_without_its_profile() {
 #[test]
 fn the_baselines_file_has_every_table_1_model() {
     for profile in [None, Some("cpu")] {
-        let e = Experiment::load(Path::new("experiments/baselines.toml"), profile).unwrap();
+        let e = Experiment::load(Path::new("experiments/baselines.toml"), &Resolution::profile(profile)).unwrap();
         let models: Vec<(String, Control)> =
             e.cells.iter().map(|c| (c.config.model.architecture.0.clone(), c.config.eval.control)).collect();
         for wanted in [
@@ -44,7 +45,7 @@ fn the_baselines_file_has_every_table_1_model() {
 #[test]
 fn the_ablations_grid_collects_once_per_robot() {
     use oneshot_lab::pipeline::stages::{collection_totals, plan};
-    let e = Experiment::load(Path::new("experiments/ablations.toml"), None).unwrap();
+    let e = Experiment::load(Path::new("experiments/ablations.toml"), &Resolution::default()).unwrap();
     assert_eq!(e.grid.sizes, [480, 800, 1600]);
     assert_eq!(collection_totals(&plan(&e)), (2, 2 * 1600), "the 480 and 800 sets are slots of the 1600 collection");
 }
@@ -60,17 +61,17 @@ fn a_pretrained_trunk_file_keys_training_by_its_content_and_must_exist() {
         weights.to_string_lossy()
     );
     std::fs::write(&file, text).unwrap();
-    let err = format!("{:#}", Experiment::load(&file, None).unwrap_err());
+    let err = format!("{:#}", Experiment::load(&file, &Resolution::default()).unwrap_err());
     assert!(err.contains("model.pretrained_backbone") && err.contains("no such file"), "{err}");
 
     let frozen = dir.join("frozen.toml");
     std::fs::write(&frozen, "[model]\nfreeze_backbone = true\n[grid]\nsizes = [16]\n").unwrap();
-    let err = format!("{:#}", Experiment::load(&frozen, None).unwrap_err());
+    let err = format!("{:#}", Experiment::load(&frozen, &Resolution::default()).unwrap_err());
     assert!(err.contains("frozen.toml") && err.contains("model.freeze_backbone"), "{err}");
 
     let train_and_eval = |bytes: &[u8]| {
         std::fs::write(&weights, bytes).unwrap();
-        let p = plan(&Experiment::load(&file, None).unwrap());
+        let p = plan(&Experiment::load(&file, &Resolution::default()).unwrap());
         let cell = &p.cells[0];
         (cell.train.clone().unwrap(), cell.eval.clone(), cell.collect_agent.clone().unwrap())
     };
@@ -118,7 +119,7 @@ fn stage_inputs(extra: &str, which: impl Fn(&PlannedCell) -> Option<String>) -> 
     let dir = crate::helpers::scratch(&format!("experiments-keys-{}", blake3::hash(extra.as_bytes())));
     let file = dir.join("exp.toml");
     std::fs::write(&file, format!("{extra}[collect]\ntasks = [0]\n[grid]\nsizes = [16]\n")).unwrap();
-    let p = plan(&Experiment::load(&file, None).unwrap());
+    let p = plan(&Experiment::load(&file, &Resolution::default()).unwrap());
     let key = which(&p.cells[0]).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
     p.stages[&key].inputs.clone()
@@ -149,7 +150,7 @@ fn a_smaller_nested_size_pretrains_its_trunk_on_its_own_layouts() {
     let text =
         "[collect]\ntasks = [0]\n[model]\nbackbone_width = 8\n[pretrain]\nsteps = 10\n[grid]\nsizes = [16, 32]\n";
     std::fs::write(&file, text).unwrap();
-    let p = plan(&Experiment::load(&file, None).unwrap());
+    let p = plan(&Experiment::load(&file, &Resolution::default()).unwrap());
     let (small, large) = (&p.cells[0], &p.cells[1]);
     assert_eq!(small.collect_agent, large.collect_agent, "one nested collection");
     let (small_key, large_key) = (small.pretrain.clone().unwrap(), large.pretrain.clone().unwrap());

@@ -9,6 +9,7 @@ pub mod queue;
 use super::executor::{Executor, Local, artifact_dir};
 use super::graph::{Plan, Stage, short};
 use super::stages::{Kind, StageOutputs};
+use crate::config::Resolution;
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -20,9 +21,9 @@ pub const RESULTS_FILE: &str = "stage-results.json";
 /// How to submit jobs.
 #[derive(Debug, Clone)]
 pub struct SlurmOptions {
-    /// The experiment file and profile the jobs rebuild their stage from.
+    /// The experiment file, profile and overrides the jobs rebuild their stage from.
     pub file: PathBuf,
-    pub profile: Option<String>,
+    pub resolution: Resolution,
     /// Extra `sbatch` arguments for every job (e.g. `--partition=cpu`).
     pub args: Vec<String>,
     /// Extra `sbatch` arguments for jobs that run a network (e.g. `--gres=gpu:1`).

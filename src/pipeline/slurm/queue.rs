@@ -55,8 +55,11 @@ pub fn submit(
         "--workers".into(),
         workers.to_string(),
     ];
-    if let Some(p) = &opts.profile {
+    if let Some(p) = &opts.resolution.profile {
         inner.extend(["--profile".into(), p.clone()]);
+    }
+    for o in &opts.resolution.overrides {
+        inner.extend(["--set".into(), o.to_string()]);
     }
     let wrap = inner.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" ");
     let mut cmd = Command::new("sbatch");
@@ -157,8 +160,8 @@ pub fn cancel(jobs: &[u64]) -> Result<()> {
     Ok(())
 }
 
-/// Single-quotes `s` for the shell that runs `--wrap`.
-fn shell_quote(s: &str) -> String {
+/// `s` single-quoted for a POSIX shell (the one that runs `--wrap`, or a command printed for the user).
+pub fn shell_quote(s: &str) -> String {
     format!("'{}'", s.replace('\'', "'\\''"))
 }
 

@@ -6,7 +6,7 @@
 //!   configuration (JSON) that went into the key, `upstream` a JSON array of upstream keys.
 //! - `attempts(id, stage_key, status, host, pid, started_at, finished_at, error)`: every execution of a stage;
 //!   a detached Slurm job's attempt has `host = 'slurm'` and its job id as `pid`.
-//! - `experiments(name, file, description, profile, updated_at)` and
+//! - `experiments(name, file, description, profile, updated_at, overrides)` and
 //!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`;
 //!   `checkpoint_evals(experiment, cell, step, eval_key)`: a cell's evaluations of intermediate checkpoints.
 //! - `episodes(eval_key, idx, task, agent_seed, demo_seed, reached, picked, placed, steps, first_reached,
@@ -21,6 +21,7 @@ pub mod read;
 use super::graph::{PlannedCell, Stage};
 use super::stages::StageOutputs;
 use anyhow::{Context, Result, bail};
+use read::ExperimentRecord;
 use rusqlite::{Connection, OptionalExtension, TransactionBehavior, params};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -37,7 +38,8 @@ CREATE TABLE IF NOT EXISTS attempts (
     id INTEGER PRIMARY KEY, stage_key TEXT NOT NULL REFERENCES stages(key), status TEXT NOT NULL,
     host TEXT NOT NULL, pid INTEGER NOT NULL, started_at REAL NOT NULL, finished_at REAL, error TEXT);
 CREATE TABLE IF NOT EXISTS experiments (
-    name TEXT PRIMARY KEY, file TEXT NOT NULL, description TEXT NOT NULL, profile TEXT, updated_at REAL NOT NULL);
+    name TEXT PRIMARY KEY, file TEXT NOT NULL, description TEXT NOT NULL, profile TEXT, updated_at REAL NOT NULL,
+    overrides TEXT NOT NULL DEFAULT '');
 CREATE TABLE IF NOT EXISTS cells (
     experiment TEXT NOT NULL, cell TEXT NOT NULL, policy TEXT NOT NULL, size INTEGER, variant TEXT, seed INTEGER,
     collect_demo TEXT, collect_agent TEXT, train_key TEXT, eval_key TEXT NOT NULL,
@@ -133,6 +135,13 @@ impl Store {
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "NORMAL")?;
         conn.execute_batch(SCHEMA).with_context(|| format!("creating the schema in {}", path.display()))?;
+        // Stores made before `--set` existed lack the experiments' overrides.
+        let has_overrides =
+            conn.prepare("SELECT 1 FROM pragma_table_info('experiments') WHERE name = 'overrides'")?.exists([])?;
+        if !has_overrides {
+            conn.execute_batch("ALTER TABLE experiments ADD COLUMN overrides TEXT NOT NULL DEFAULT ''")
+                .with_context(|| format!("adding the experiments' overrides to {}", path.display()))?;
+        }
         Ok(Store { conn })
     }
 
@@ -156,20 +165,16 @@ impl Store {
         Ok(())
     }
 
-    /// Records an experiment and its cells (replacing its previous cells).
-    pub fn record_experiment(
-        &mut self,
-        name: &str,
-        file: &str,
-        description: &str,
-        profile: Option<&str>,
-        cells: &[PlannedCell],
-    ) -> Result<()> {
+    /// Records an experiment (its file, description, profile and `--set` overrides as spelled) and its cells
+    /// (replacing its previous cells).
+    pub fn record_experiment(&mut self, record: &ExperimentRecord, name: &str, cells: &[PlannedCell]) -> Result<()> {
         let tx = self.conn.transaction()?;
+        let ExperimentRecord { file, description, profile, overrides } = record;
         tx.execute(
-            "INSERT INTO experiments (name, file, description, profile, updated_at) VALUES (?1, ?2, ?3, ?4, ?5)
-             ON CONFLICT(name) DO UPDATE SET file = ?2, description = ?3, profile = ?4, updated_at = ?5",
-            params![name, file, description, profile, now()],
+            "INSERT INTO experiments (name, file, description, profile, updated_at, overrides)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6)
+             ON CONFLICT(name) DO UPDATE SET file = ?2, description = ?3, profile = ?4, updated_at = ?5, overrides = ?6",
+            params![name, file, description, profile, now(), overrides],
         )?;
         tx.execute("DELETE FROM cells WHERE experiment = ?1", [name])?;
         tx.execute("DELETE FROM checkpoint_evals WHERE experiment = ?1", [name])?;
@@ -366,7 +371,7 @@ mod tests {
     fn a_stage_another_host_runs_is_busy_and_names_its_holder() {
         let root = std::env::temp_dir().join(format!("oneshot-store-claim-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
-        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), None).unwrap();
+        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
         let stage = &plan.stages[&plan.order[0]];
         let mut store = Store::open(&root).unwrap();
         store.register(&[stage]).unwrap();

@@ -11,6 +11,8 @@ pub struct ExperimentRecord {
     pub file: String,
     pub description: String,
     pub profile: Option<String>,
+    /// The `--set` overrides it was run with, as the command line spells them (empty when none).
+    pub overrides: String,
 }
 
 /// A cell of an experiment with what the report needs of its stages.
@@ -119,8 +121,13 @@ impl Store {
     pub fn experiment(&self, name: &str) -> Result<ExperimentRecord> {
         let row = self
             .conn
-            .query_row("SELECT file, description, profile FROM experiments WHERE name = ?1", [name], |r| {
-                Ok(ExperimentRecord { file: r.get(0)?, description: r.get(1)?, profile: r.get(2)? })
+            .query_row("SELECT file, description, profile, overrides FROM experiments WHERE name = ?1", [name], |r| {
+                Ok(ExperimentRecord {
+                    file: r.get(0)?,
+                    description: r.get(1)?,
+                    profile: r.get(2)?,
+                    overrides: r.get(3)?,
+                })
             })
             .optional()?;
         match row {
