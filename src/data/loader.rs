@@ -22,6 +22,8 @@ pub struct Batch {
     pub actions: Vec<f32>,
     pub points: Vec<f32>,
     pub poses: Vec<f32>,
+    /// The task each sample demonstrates.
+    pub tasks: Vec<i64>,
     /// Each sample's demonstration and agent trajectory ([`Sample::source`]).
     pub sources: Vec<[usize; 2]>,
 }
@@ -57,6 +59,7 @@ impl Batch {
         let size = samples.len();
         let (mut actions, mut points, mut poses) = (vec![], vec![], vec![]);
         let sources = samples.iter().map(|s| s.source).collect();
+        let tasks = samples.iter().map(|s| s.task as i64).collect();
         let (mut context, mut agent, mut bytes, mut agent_bytes, mut draws) = (vec![], vec![], vec![], vec![], vec![]);
         let mut jitter = false;
         for s in samples {
@@ -93,7 +96,7 @@ impl Batch {
             );
             BatchFrames::Raw { context: host(&bytes, tc), agent: host(&agent_bytes, ta), draws, jitter }
         };
-        Batch { size, frames, actions, points, poses, sources }
+        Batch { size, frames, actions, points, poses, tasks, sources }
     }
 
     /// Copies the batch to `device` (augmenting raw frames there) with the shapes `model` and frames of
@@ -118,6 +121,7 @@ impl Batch {
             actions: t(&self.actions, &[b, ta - 1, 8]),
             points: t(&self.points, &[b, 2]),
             poses: t(&self.poses, &[b, 6]),
+            tasks: Tensor::from_slice(&self.tasks).to_device(device),
         }
     }
 }

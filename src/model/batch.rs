@@ -2,11 +2,12 @@
 use tch::Tensor;
 
 /// A batch on a device: `context` `[B, Tc, 3, H, W]`, `agent` `[B, Ta, 3, H, W]`, `actions` `[B, Ta - 1, 8]`,
-/// `points` `[B, 2]`, `poses` `[B, 6]`.
+/// `points` `[B, 2]`, `poses` `[B, 6]`, `tasks` `[B]` (int64: the task each sample demonstrates).
 pub struct DeviceBatch {
     pub context: Tensor,
     pub agent: Tensor,
     pub actions: Tensor,
     pub points: Tensor,
     pub poses: Tensor,
+    pub tasks: Tensor,
 }

@@ -132,6 +132,11 @@ pub struct ModelConfig {
     /// `train.loss.pose`. It makes each frame's embedding locate the demonstrated object. A departure: the
     /// authors' transformer has no such head (false).
     pub pose_head: bool,
+    /// An extra head on the architectures with the paper's heads: the task (which object to which bin, one of
+    /// sixteen) classified from the task embedding alone, trained with weight `train.loss.task`. It asks the
+    /// context to say which task it shows, the selection a policy must make. A departure: the authors have no
+    /// such head (false).
+    pub task_head: bool,
 }
 
 impl Default for ModelConfig {
@@ -162,6 +167,7 @@ impl Default for ModelConfig {
             context_frames: 4,
             agent_frames: 7,
             pose_head: false,
+            task_head: false,
         }
     }
 }
@@ -222,9 +228,15 @@ impl ModelConfig {
             bail!("model.context_frames = {} must be at least 2", self.context_frames);
         }
         let registration = self.architecture.registration().expect("checked above");
-        if self.pose_head && !registration.optional_pose_head {
+        if self.pose_head && !registration.paper_heads {
             bail!(
                 "model.pose_head = true needs an architecture that ends in the paper's heads, not {:?}",
+                self.architecture.0
+            );
+        }
+        if self.task_head && !registration.paper_heads {
+            bail!(
+                "model.task_head = true needs an architecture that ends in the paper's heads, not {:?}",
                 self.architecture.0
             );
         }

@@ -4,6 +4,7 @@ use super::config::ModelConfig;
 use super::mixture::{MixtureHead, MixtureSpec};
 use super::output::{PointPrediction, PolicyOutput};
 use crate::sim::action::ACTION_RANGES;
+use crate::sim::task::NUM_TASKS;
 use tch::nn::{self, Module, ModuleT};
 use tch::{Kind, Tensor};
 
@@ -92,11 +93,13 @@ pub struct PolicyHeads {
     point_head: PointHead,
     /// `model.pose_head`: [task, frame] -> hidden -> grasp and drop positions.
     pose_head: Option<(nn::Linear, nn::Linear)>,
+    /// `model.task_head`: task embedding -> logits of the sixteen tasks.
+    task_head: Option<nn::Linear>,
 }
 
 impl PolicyHeads {
     /// Heads over `latent`-wide embeddings, under `vs` (parameters `policy`, `inverse`, `action_head`,
-    /// `point_head`, and `pose_head` when the model has one).
+    /// `point_head`, and `pose_head` and `task_head` when the model has them).
     pub fn new(vs: &nn::Path, latent: i64, config: &ModelConfig) -> PolicyHeads {
         PolicyHeads {
             policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
@@ -110,6 +113,9 @@ impl PolicyHeads {
                     nn::linear(&p / "out", config.point_hidden, 6, Default::default()),
                 )
             }),
+            task_head: config
+                .task_head
+                .then(|| nn::linear(vs / "task_head", latent, NUM_TASKS as i64, Default::default())),
         }
     }
 
@@ -125,6 +131,7 @@ impl PolicyHeads {
             inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
             point: Some(self.point_head.forward(task)),
             poses: self.pose_head.as_ref().map(|(h, o)| workspace_positions(&o.forward(&h.forward(&joint).relu()))),
+            task_logits: self.task_head.as_ref().map(|h| h.forward(task)),
         }
     }
 }

@@ -13,6 +13,8 @@ pub struct PolicyOutput {
     pub point: Option<PointPrediction>,
     /// Grasp and drop positions `[B, Ta, 6]` (metres) at every agent frame (`model.pose_head`; otherwise none).
     pub poses: Option<Tensor>,
+    /// Logits `[B, tasks]` of the demonstrated task from the task embedding (`model.task_head`; otherwise none).
+    pub task_logits: Option<Tensor>,
 }
 
 /// A 2-D Gaussian over the normalised image grid: mean `[B, 2]` and Cholesky factor entries `[B, 3]` (a, c, b

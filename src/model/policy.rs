@@ -19,6 +19,9 @@ pub struct Losses {
     /// Squared error (metres) of the predicted grasp and drop positions (architectures with a pose head, and
     /// `model.pose_head`), weighted by `train.loss.pose`.
     pub pose: Tensor,
+    /// Cross-entropy of the demonstrated task from the task embedding (`model.task_head`), weighted by
+    /// `train.loss.task`.
+    pub task: Tensor,
 }
 
 /// A policy architecture: how it is queried for actions and how it is trained.
@@ -59,6 +62,10 @@ pub fn head_losses(out: &PolicyOutput, batch: &DeviceBatch, spec: MixtureSpec) -
             let target = batch.poses.unsqueeze(1).expand_as(p);
             p.to_kind(Kind::Float).mse_loss(&target, tch::Reduction::Mean)
         }),
+        task: out
+            .task_logits
+            .as_ref()
+            .map_or_else(zero, |l| l.to_kind(Kind::Float).cross_entropy_for_logits(&batch.tasks)),
     }
 }
 

@@ -17,6 +17,8 @@ pub struct LossWeights {
     /// Grasp-and-drop position regression (metres squared): DAML's auxiliary loss, which the authors add
     /// unweighted (1), and `model.pose_head`'s.
     pub pose: f64,
+    /// Cross-entropy of the demonstrated task from the task embedding (`model.task_head`'s; a departure).
+    pub task: f64,
 }
 
 /// The authors' probability that a training window starts at its trajectory's first frame.
@@ -32,13 +34,17 @@ impl TrainConfig {
 impl LossWeights {
     /// The weighted sum of `losses` that is optimised.
     pub fn total(&self, losses: &Losses) -> Tensor {
-        &losses.bc * self.bc + &losses.inverse * self.inverse + &losses.point * self.point + &losses.pose * self.pose
+        &losses.bc * self.bc
+            + &losses.inverse * self.inverse
+            + &losses.point * self.point
+            + &losses.pose * self.pose
+            + &losses.task * self.task
     }
 }
 
 impl Default for LossWeights {
     fn default() -> Self {
-        LossWeights { bc: 1.0, inverse: 1.0, point: 0.1, pose: 1.0 }
+        LossWeights { bc: 1.0, inverse: 1.0, point: 0.1, pose: 1.0, task: 1.0 }
     }
 }
 
@@ -180,7 +186,7 @@ impl TrainConfig {
             bail!("train.val_fraction = {} out of range (0, 1)", self.val_fraction);
         }
         let w = &self.loss;
-        for (key, v) in [("bc", w.bc), ("inverse", w.inverse), ("point", w.point), ("pose", w.pose)] {
+        for (key, v) in [("bc", w.bc), ("inverse", w.inverse), ("point", w.point), ("pose", w.pose), ("task", w.task)] {
             if !(v >= 0.0 && v.is_finite()) {
                 bail!("train.loss.{key} = {v} must be a non-negative number");
             }
@@ -250,6 +256,9 @@ pub fn check_heads(model: &ModelConfig, train: &TrainConfig) -> Result<()> {
             train.loss.pose,
             model.architecture.0
         );
+    }
+    if !model.task_head && train.loss.task != 1.0 {
+        bail!("train.loss.task = {} weights a head the model lacks: set model.task_head = true", train.loss.task);
     }
     Ok(())
 }

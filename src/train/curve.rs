@@ -12,6 +12,10 @@ pub struct CurvePoint {
     pub bc: f64,
     pub inverse: f64,
     pub point: f64,
+    /// Cross-entropy of the demonstrated task (`model.task_head`; 0 without the head, and in curves written
+    /// before it existed). Chance over sixteen tasks is ln 16 = 2.77.
+    #[serde(default)]
+    pub task: f64,
     /// Weighted sum as optimised.
     pub total: f64,
 }
@@ -57,7 +61,7 @@ mod tests {
     use super::*;
 
     fn point(step: u64, split: &str) -> CurvePoint {
-        CurvePoint { step, split: split.into(), bc: 1.0, inverse: 0.0, point: 0.0, total: 1.0 }
+        CurvePoint { step, split: split.into(), bc: 1.0, inverse: 0.0, point: 0.0, task: 0.0, total: 1.0 }
     }
 
     #[test]

@@ -140,17 +140,18 @@ pub fn load_trained(dir: &Path, step: Option<u64>, device: tch::Device) -> Resul
 
 fn mean_losses(policy: &Policy, batches: &[DeviceBatch], w: &LossWeights, step: u64) -> CurvePoint {
     let n = batches.len() as f64;
-    let (mut bc, mut inv, mut pnt, mut total) = (0.0, 0.0, 0.0, 0.0);
+    let (mut bc, mut inv, mut pnt, mut task, mut total) = (0.0, 0.0, 0.0, 0.0, 0.0);
     tch::no_grad(|| {
         for b in batches {
             let l = policy.losses(b, false);
             bc += l.bc.double_value(&[]) / n;
             inv += l.inverse.double_value(&[]) / n;
             pnt += l.point.double_value(&[]) / n;
+            task += l.task.double_value(&[]) / n;
             total += w.total(&l).double_value(&[]) / n;
         }
     });
-    CurvePoint { step, split: "val".into(), bc, inverse: inv, point: pnt, total }
+    CurvePoint { step, split: "val".into(), bc, inverse: inv, point: pnt, task, total }
 }
 
 /// Options of a training run that are not part of its identity.
@@ -236,11 +237,11 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
             policy.losses(&batch, true)
         };
         let total = config.loss.total(&l);
-        let [bc, inverse, point, sum] = window.add(&l, &total);
-        if ![bc, inverse, point, sum].iter().all(|v| v.is_finite()) {
+        let [bc, inverse, point, task, sum] = window.add(&l, &total);
+        if ![bc, inverse, point, task, sum].iter().all(|v| v.is_finite()) {
             bail!(
                 "training step {step}: the loss is not finite (total {sum}; bc {bc}, inverse {inverse}, point \
-                 {point}); stopped before its optimiser step"
+                 {point}, task {task}); stopped before its optimiser step"
             );
         }
         opt.backward_step(&total);
@@ -284,13 +285,14 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
 #[derive(Default)]
 struct TrainWindow {
     n: f64,
-    sums: [f64; 4],
+    sums: [f64; 5],
 }
 
 impl TrainWindow {
-    /// Adds one step's losses (bc, inverse, point, total) and returns them.
-    fn add(&mut self, l: &Losses, total: &Tensor) -> [f64; 4] {
-        let v = [&l.bc, &l.inverse, &l.point, total].map(|t| t.detach().to_kind(Kind::Double).double_value(&[]));
+    /// Adds one step's losses (bc, inverse, point, task, total) and returns them.
+    fn add(&mut self, l: &Losses, total: &Tensor) -> [f64; 5] {
+        let v =
+            [&l.bc, &l.inverse, &l.point, &l.task, total].map(|t| t.detach().to_kind(Kind::Double).double_value(&[]));
         for (s, x) in self.sums.iter_mut().zip(v) {
             *s += x;
         }
@@ -300,8 +302,8 @@ impl TrainWindow {
 
     fn take(&mut self, step: u64) -> CurvePoint {
         let n = self.n.max(1.0);
-        let [bc, inverse, point, total] = self.sums.map(|s| s / n);
+        let [bc, inverse, point, task, total] = self.sums.map(|s| s / n);
         *self = TrainWindow::default();
-        CurvePoint { step, split: "train".into(), bc, inverse, point, total }
+        CurvePoint { step, split: "train".into(), bc, inverse, point, task, total }
     }
 }

@@ -79,6 +79,7 @@ fn a_tiny_model_overfits_one_batch() {
         actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
         points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
         poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
+        tasks: Tensor::from_slice(&[3i64, 12]),
     };
     // A learning rate at which the loss falls steadily: at 1e-2 it fell, then climbed back on one CPU and not on
     // another (2.4 from 6.3 after 2,400 steps), so the test measured rounding rather than learning.
@@ -118,6 +119,7 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
         actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
         points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
         poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
+        tasks: Tensor::from_slice(&[3i64, 12]),
     };
     let mut opt = Adam::new(&vs, 1e-2);
     let first = policy.losses(&batch, true).pose.double_value(&[]);
@@ -136,6 +138,55 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
         let model = ModelConfig { architecture: Architecture::named(name), pose_head: true, ..tiny() };
         let err = model.validate().unwrap_err().to_string();
         assert!(err.contains("model.pose_head") && err.contains(name), "{err}");
+    }
+}
+
+#[test]
+fn the_optional_task_head_reads_the_context_and_fits_its_labels() {
+    let _rng = seeded(3);
+    let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
+    assert!(policy.forward_t(&images(1, 4), &images(1, 2), false).task_logits.is_none());
+    assert!(vs.variables().keys().all(|name| !name.contains("task_head")));
+
+    let (vs, policy) = build_policy(&ModelConfig { task_head: true, ..tiny() }, Device::Cpu).unwrap();
+    let (context, agent) = (images(2, 4), images(2, 7));
+    // The task embedding sees the context and the first agent frame only.
+    let later = agent.copy();
+    let _ = later.narrow(1, 1, 6).fill_(3.0);
+    let a = policy.forward_t(&context, &agent, false).task_logits.unwrap();
+    let b = policy.forward_t(&context, &later, false).task_logits.unwrap();
+    assert_eq!(a.size(), [2, 16]);
+    assert!((&a - &b).abs().max().double_value(&[]) < 1e-5);
+    let other = context.copy();
+    let _ = other.narrow(1, 0, 1).fill_(3.0);
+    let c = policy.forward_t(&other, &agent, false).task_logits.unwrap();
+    assert!((&a - &c).abs().max().double_value(&[]) > 1e-4, "the context moves the task logits");
+
+    let batch = DeviceBatch {
+        context,
+        agent,
+        actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
+        tasks: Tensor::from_slice(&[5i64, 9]),
+    };
+    let mut opt = Adam::new(&vs, 1e-2);
+    let first = policy.losses(&batch, true).task.double_value(&[]);
+    assert!((first - 16f64.ln()).abs() < 1.0, "starts near chance, ln 16: {first}");
+    for _ in 0..100 {
+        opt.backward_step(&policy.losses(&batch, true).task);
+    }
+    let last = policy.losses(&batch, true).task.double_value(&[]);
+    assert!(last < 0.1 * first, "task loss {first} -> {last}");
+
+    let weighted = TrainConfig { loss: LossWeights { task: 2.0, ..LossWeights::default() }, ..Default::default() };
+    let err = check_heads(&tiny(), &weighted).unwrap_err().to_string();
+    assert!(err.contains("train.loss.task = 2") && err.contains("model.task_head"), "{err}");
+    check_heads(&ModelConfig { task_head: true, ..tiny() }, &weighted).unwrap();
+    for name in ["contextual_lstm", "daml"] {
+        let model = ModelConfig { architecture: Architecture::named(name), task_head: true, ..tiny() };
+        let err = model.validate().unwrap_err().to_string();
+        assert!(err.contains("model.task_head") && err.contains(name), "{err}");
     }
 }
 

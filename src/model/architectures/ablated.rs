@@ -20,7 +20,7 @@ pub const CONV: Registration = Registration {
     description: "architecture ablation: small 4-layer 32-channel conv net + spatial softmax + MLPs, no attention",
     auxiliary_heads: true,
     pose_head: false,
-    optional_pose_head: true,
+    paper_heads: true,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, false)),
 };
@@ -31,7 +31,7 @@ pub const CONV_LSTM: Registration = Registration {
     description: "architecture ablation: the small conv net with an LSTM over context and agent frames",
     auxiliary_heads: true,
     pose_head: false,
-    optional_pose_head: true,
+    paper_heads: true,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, true)),
 };
@@ -42,7 +42,7 @@ pub const RESNET: Registration = Registration {
     description: "architecture ablation: ResNet-18 + spatial softmax + MLPs, no attention",
     auxiliary_heads: true,
     pose_head: false,
-    optional_pose_head: true,
+    paper_heads: true,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, false)),
 };
@@ -53,7 +53,7 @@ pub const RESNET_LSTM: Registration = Registration {
     description: "architecture ablation: ResNet-18 with an LSTM over context and agent frames",
     auxiliary_heads: true,
     pose_head: false,
-    optional_pose_head: true,
+    paper_heads: true,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, true)),
 };

@@ -22,7 +22,7 @@ pub const DAML: Registration = Registration {
     description: "the DAML baseline: MAML with a learned inner loss over the demonstration, and a grasp/drop head",
     auxiliary_heads: false,
     pose_head: true,
-    optional_pose_head: false,
+    paper_heads: false,
     // Its inner gradient step carries bf16 rounding into the adapted weights: the outer gradient turns away from
     // fp32's (tests/it/precision.rs measured a cosine of 0.4).
     bf16: false,
@@ -181,7 +181,13 @@ impl Daml {
 
 impl PolicyNet for Daml {
     fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
-        PolicyOutput { actions: self.batch_outputs(context, agent, train).0, inverse: None, point: None, poses: None }
+        PolicyOutput {
+            actions: self.batch_outputs(context, agent, train).0,
+            inverse: None,
+            point: None,
+            poses: None,
+            task_logits: None,
+        }
     }
 
     fn set_channels_last(&mut self, on: bool) {
@@ -204,6 +210,7 @@ impl PolicyNet for Daml {
             inverse: zero(),
             point: zero(),
             pose: poses.to_kind(Kind::Float).mse_loss(&batch.poses, Reduction::Mean),
+            task: zero(),
         }
     }
 

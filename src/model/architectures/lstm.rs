@@ -20,7 +20,7 @@ pub const CONTEXTUAL_LSTM: Registration = Registration {
     description: "the Contextual-LSTM baseline: encoder and decoder LSTMs over frame embeddings",
     auxiliary_heads: true,
     pose_head: false,
-    optional_pose_head: false,
+    paper_heads: false,
     bf16: true,
     build: |vs, config| Box::new(ContextualLstm::new(vs, config)),
 };
@@ -98,6 +98,7 @@ impl PolicyNet for ContextualLstm {
             inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
             point: Some(self.point_head.forward(&context_summary)),
             poses: None,
+            task_logits: None,
         }
     }
 }

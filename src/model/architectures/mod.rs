@@ -20,8 +20,8 @@ pub struct Registration {
     pub auxiliary_heads: bool,
     /// Whether it predicts the grasp and drop positions (what `eval.control = "scripted_poses"` executes).
     pub pose_head: bool,
-    /// Whether `model.pose_head` can add a grasp-and-drop head (the architectures ending in the paper's heads).
-    pub optional_pose_head: bool,
+    /// Whether it ends in the paper's heads, to which `model.pose_head` and `model.task_head` can add.
+    pub paper_heads: bool,
     /// Whether it trains faithfully under bf16 autocast (`train.precision = "bf16"`).
     pub bf16: bool,
     pub build: fn(&nn::Path, &ModelConfig) -> Box<dyn PolicyNet>,

@@ -18,7 +18,7 @@ pub const TRANSFORMER: Registration = Registration {
     description: "non-local attention over all tokens of all frames (the paper's model)",
     auxiliary_heads: true,
     pose_head: false,
-    optional_pose_head: true,
+    paper_heads: true,
     bf16: true,
     build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::Attention)),
 };
@@ -29,7 +29,7 @@ pub const TEMPORAL_CONV: Registration = Registration {
     description: "the no-attention ablation: causal bottleneck blocks around a 5x5x5 spatio-temporal convolution",
     auxiliary_heads: true,
     pose_head: false,
-    optional_pose_head: true,
+    paper_heads: true,
     // Under bf16 autocast on a CPU with AVX512-BF16 (AMD EPYC, 2026-12-02) its 5x5x5 convolution's gradient came
     // out at a cosine of 0.0 from fp32's (tests/it/precision.rs), at this commit and the one before: refused.
     bf16: false,
