@@ -28,6 +28,8 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::RunStage(a) => cli::orchestrate::run_stage(a),
         Command::Plan(a) => cli::orchestrate::plan(a),
         Command::Config(a) => cli::config::config(a),
+        Command::Reference(a) => cli::reference::reference(a),
+        Command::Completions(a) => cli::reference::completions(a),
         Command::Why(a) => cli::inspect::why(a),
         Command::Status(a) => cli::inspect::status(a),
         Command::Cancel(a) => cli::orchestrate::cancel(a),

@@ -7,6 +7,7 @@ use super::config::ConfigArgs;
 use super::eval::{EvalArgs, LocaliseArgs, ProbeArgs};
 use super::inspect::{GcArgs, QueryArgs, ReportArgs, StatusArgs, WhyArgs};
 use super::orchestrate::{CancelArgs, PlanArgs, RunArgs, RunStageArgs};
+use super::reference::{CompletionsArgs, ReferenceArgs};
 use super::train::TrainArgs;
 use super::world::{CollectArgs, ContactSheetArgs, ExpertCheckArgs};
 use clap::{Parser, Subcommand};
@@ -64,6 +65,12 @@ pub enum Command {
     Bench(BenchCommand),
     /// A PNG of first frames of several instances for both robots.
     ContactSheet(ContactSheetArgs),
+    /// Prints a reference page generated from the code (`config`: every experiment-file key; `cli`: every
+    /// command and option), as kept under docs/reference/.
+    Reference(ReferenceArgs),
+    /// Prints a shell completion script (commands, options and their fixed values), e.g. `oneshot-lab
+    /// completions bash > ~/.local/share/bash-completion/completions/oneshot-lab`.
+    Completions(CompletionsArgs),
 }
 
 /// The benchmarks of `bench <what>`.

@@ -32,11 +32,13 @@ pub struct BenchTrainArgs {
     /// Model, frame size and batch to time.
     #[arg(long, value_enum, default_value_t = BenchSize::Small)]
     pub config: BenchSize,
+    /// Training steps timed (after one warm-up step).
     #[arg(long, default_value_t = 5)]
     pub steps: usize,
     /// Override the configuration's batch size.
     #[arg(long)]
     pub batch: Option<usize>,
+    /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N`.
     #[arg(long, default_value = "auto")]
     pub device: String,
     /// Architectures to time, comma separated, or `all` (default: the configuration's, the transformer).
@@ -83,10 +85,13 @@ pub enum MemoryFormatArg {
 /// Arguments of the `bench eval` command.
 #[derive(clap::Args)]
 pub struct BenchEvalArgs {
+    /// Episodes per policy.
     #[arg(long, default_value_t = 16)]
     pub episodes: usize,
+    /// Actions per episode.
     #[arg(long, default_value_t = 40)]
     pub horizon: usize,
+    /// Simulation threads (default: CPU cores).
     #[arg(long)]
     pub workers: Option<usize>,
 }
@@ -108,6 +113,7 @@ pub struct BenchLoaderArgs {
     /// Agent collection folder.
     #[arg(long)]
     pub agents: PathBuf,
+    /// Samples per batch.
     #[arg(long, default_value_t = 30)]
     pub batch: usize,
     /// Batches timed (after one warm-up batch).

@@ -12,8 +12,10 @@ use std::time::Instant;
 /// Arguments of the `bench world` command.
 #[derive(clap::Args)]
 pub struct BenchWorldArgs {
+    /// `sawyer` (the demonstrator) or `panda` (the agent).
     #[arg(long, value_parser = parse_robot, default_value = "sawyer")]
     pub robot: Robot,
+    /// Expert episodes timed.
     #[arg(long, default_value_t = 4)]
     pub episodes: usize,
     #[command(flatten)]

@@ -8,12 +8,14 @@ use std::path::PathBuf;
 /// Arguments of the `config` command.
 #[derive(clap::Args)]
 pub struct ConfigArgs {
+    /// The experiment file.
     pub file: PathBuf,
     #[command(flatten)]
     pub file_resolution: ResolutionArgs,
     /// One cell of the grid (e.g. `n1600-full-s0`) instead of the base configuration.
     #[arg(long)]
     pub cell: Option<String>,
+    /// How to print it.
     #[arg(long, value_enum, default_value = "toml")]
     pub format: ConfigFormat,
 }

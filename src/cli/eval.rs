@@ -129,8 +129,10 @@ pub struct ProbeArgs {
     /// Probe windows at the start of each trajectory (the approach to the object) instead of training's draws.
     #[arg(long)]
     pub from_start: bool,
+    /// Seed of the windows drawn.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N`.
     #[arg(long, default_value = "auto")]
     pub device: String,
 }
@@ -159,8 +161,10 @@ pub struct LocaliseArgs {
     /// Errors are printed every this many steps (default: ten times over the run).
     #[arg(long)]
     pub report_every: Option<u64>,
+    /// Seed of the trunk's initial weights and batches.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N`.
     #[arg(long, default_value = "auto")]
     pub device: String,
     /// `grasp`: the task's grasp position, told the task; `objects`: all four objects' positions, not told it

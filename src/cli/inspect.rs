@@ -31,7 +31,9 @@ pub struct StatusArgs {
 /// Arguments of the `query` command.
 #[derive(clap::Args)]
 pub struct QueryArgs {
+    /// A named summary (`cells`, `stages`, `failures`, `curves`) or an SQL statement that only reads.
     pub query: String,
+    /// How rows are printed.
     #[arg(long, value_enum, default_value_t = Format::Table)]
     pub format: Format,
     #[command(flatten)]
@@ -52,9 +54,11 @@ pub enum Format {
 /// Arguments of the `gc` command.
 #[derive(clap::Args)]
 pub struct GcArgs {
+    /// The experiment files whose stages are kept.
     pub files: Vec<PathBuf>,
     #[command(flatten)]
     pub store: StoreArgs,
+    /// Remove the unreferenced artifacts (after printing them and their size); without it they are only listed.
     #[arg(long)]
     pub delete: bool,
 }
@@ -62,6 +66,7 @@ pub struct GcArgs {
 /// Arguments of the `report` command.
 #[derive(clap::Args)]
 pub struct ReportArgs {
+    /// The experiment file whose report is rebuilt.
     pub file: PathBuf,
     #[command(flatten)]
     pub store: StoreArgs,

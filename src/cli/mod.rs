@@ -10,6 +10,7 @@ pub mod inspect;
 pub mod options;
 pub mod orchestrate;
 pub mod print;
+pub mod reference;
 pub mod train;
 pub mod world;
 

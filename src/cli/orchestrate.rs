@@ -18,6 +18,7 @@ use std::path::PathBuf;
 /// Arguments of the `run` command.
 #[derive(clap::Args)]
 pub struct RunArgs {
+    /// The experiment file.
     pub file: PathBuf,
     #[command(flatten)]
     pub store: StoreArgs,
@@ -57,11 +58,14 @@ pub struct RunArgs {
 /// Arguments of the `run-stage` command.
 #[derive(clap::Args)]
 pub struct RunStageArgs {
+    /// The experiment file the stage belongs to.
     pub file: PathBuf,
+    /// The stage's key.
     #[arg(long)]
     pub key: String,
     #[command(flatten)]
     pub store: StoreArgs,
+    /// Simulation threads (default: CPU cores).
     #[arg(long)]
     pub workers: Option<usize>,
 }
@@ -69,6 +73,7 @@ pub struct RunStageArgs {
 /// Arguments of the `plan` command.
 #[derive(clap::Args)]
 pub struct PlanArgs {
+    /// The experiment file.
     pub file: PathBuf,
     #[command(flatten)]
     pub store: StoreArgs,
@@ -77,6 +82,7 @@ pub struct PlanArgs {
 /// Arguments of the `cancel` command.
 #[derive(clap::Args)]
 pub struct CancelArgs {
+    /// The experiment file whose jobs are cancelled.
     pub file: PathBuf,
     #[command(flatten)]
     pub store: StoreArgs,

@@ -19,10 +19,13 @@ pub struct TrainArgs {
     /// TOML file with optional [model] and [train] tables (paper defaults otherwise).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Training steps (default: the configuration's train.steps).
     #[arg(long)]
     pub steps: Option<u64>,
+    /// Samples per step (default: train.batch_size).
     #[arg(long)]
     pub batch_size: Option<usize>,
+    /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N` (default: train.device).
     #[arg(long)]
     pub device: Option<String>,
 }

@@ -13,11 +13,13 @@ use std::path::{Path, PathBuf};
 /// Arguments of the `expert-check` command.
 #[derive(clap::Args)]
 pub struct ExpertCheckArgs {
+    /// `sawyer` (the demonstrator) or `panda` (the agent).
     #[arg(long, value_parser = parse_robot)]
     pub robot: Robot,
     /// Instances of each of the 16 tasks.
     #[arg(long, default_value_t = 10)]
     pub per_task: usize,
+    /// Root seed of the layouts.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Action budget per episode (default: collect.max_actions).
@@ -46,6 +48,7 @@ pub enum YawRule {
 /// Arguments of the `collect` command.
 #[derive(clap::Args)]
 pub struct CollectArgs {
+    /// `sawyer` (the demonstrator) or `panda` (the agent).
     #[arg(long, value_parser = parse_robot)]
     pub robot: Robot,
     /// Output folder (must not exist; it appears only when complete).
@@ -95,10 +98,13 @@ pub enum Layouts {
 /// Arguments of the `contact-sheet` command.
 #[derive(clap::Args)]
 pub struct ContactSheetArgs {
+    /// The PNG file written.
     #[arg(long, default_value = "contact_sheet.png")]
     pub out: PathBuf,
+    /// Instances (columns) per robot.
     #[arg(long, default_value_t = 4)]
     pub instances: usize,
+    /// Root seed of the layouts.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     #[command(flatten)]

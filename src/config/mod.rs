@@ -36,7 +36,7 @@ impl Resolution {
 }
 
 /// Reference policies that are evaluated once per experiment through the same path as the models.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Reference {
     Expert,
@@ -63,7 +63,7 @@ impl Reference {
 }
 
 /// The grid of cells.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Grid {
     /// Training trajectories per robot, spread evenly over the collected tasks (`collect.tasks`; a multiple of
@@ -73,6 +73,7 @@ pub struct Grid {
     pub variants: Vec<String>,
     /// Training seeds.
     pub seeds: Vec<u64>,
+    /// Reference policies evaluated once per experiment beside the models (`expert`, `random`).
     pub references: Vec<Reference>,
     /// Smaller sizes train on the first slots of each task of the largest size's collection (collected once per
     /// robot and collection settings), and share its pool of layouts; `false` collects every size separately (the
@@ -91,7 +92,7 @@ impl Default for Grid {
 pub const FULL: &str = "full";
 
 /// Everything one cell's stages need.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CellConfig {
     pub world: WorldConfig,

@@ -14,7 +14,7 @@ const AUTHORS_FRAME: [f64; 2] = [240.0, 320.0];
 
 /// Augmentation ranges, the authors' by default (`color_jitter`, `rand_crop`, `rand_translate` of their
 /// `experiments/base.yaml`). Pixel ranges refer to a 240 x 320 frame and scale with the frame size.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Augmentation {
     /// Largest additive change of hue (in half turns: 0.4 is 72 degrees), saturation (0..1) and value (0..255).

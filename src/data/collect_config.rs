@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
 /// Whether a collection's layouts recur under several tasks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum LayoutSharing {
     /// Each slot draws an environment from a pool with replacement; the layout depends on the environment and
@@ -21,7 +21,7 @@ pub enum LayoutSharing {
 
 /// How trajectories are collected: the `[collect]` section of an experiment file (the robot and the trajectories
 /// per task come from the grid).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CollectSettings {
     /// Root seed; instance seeds derive from it, the robot, the task and the slot.
@@ -41,7 +41,7 @@ pub struct CollectSettings {
     /// JPEG quality of stored frames (1..=100).
     pub jpeg_quality: u8,
     /// Standard deviation (m) of noise added to the executed position targets, the recorded actions staying the
-    /// expert's (0: the authors' noise-free data; see [`run_expert_perturbed`]).
+    /// expert's (0: the authors' noise-free data).
     pub action_noise: f64,
 }
 

@@ -4,7 +4,7 @@ use anyhow::{Result, bail};
 use serde::{Deserialize, Serialize};
 
 /// Which demonstrator frames the policy sees (the context ablation).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ContextMode {
     /// `context_frames` frames, one from each equal segment of the video, first and last forced.
@@ -17,7 +17,7 @@ pub enum ContextMode {
 }
 
 /// Which frames a demonstration (context) frame attends to in the transformer's causal layers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ContextAttention {
     /// Context frames at or before it, like every frame (the authors' `NonLocalLayer`: a lower-triangular mask
@@ -29,7 +29,7 @@ pub enum ContextAttention {
 }
 
 /// How the transformer computes its task embedding from [context, first agent frame].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum TaskPass {
     /// A second pass of the trunk features of those frames through positional encoding and the causal layers,
@@ -41,7 +41,7 @@ pub enum TaskPass {
 }
 
 /// Initial value of the action head's learned log-scales.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum LogScaleInit {
     /// Normal draws divided by sqrt(8) (the authors').
@@ -51,8 +51,9 @@ pub enum LogScaleInit {
     Zero,
 }
 
-/// The policy architecture: a name registered in [`super::architectures::ARCHITECTURES`].
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+/// The policy architecture: a name registered in `model::architectures` (the paper's model, its ablations and
+/// the baselines).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(transparent)]
 pub struct Architecture(pub String);
 
@@ -76,7 +77,7 @@ impl Default for Architecture {
 }
 
 /// Architecture and head sizes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelConfig {
     pub architecture: Architecture,
@@ -95,6 +96,7 @@ pub struct ModelConfig {
     pub attention_layers: usize,
     /// Inner width of the query/key/value projections.
     pub attention_inner: i64,
+    /// Attention heads of each non-local layer (the inner width is split between them).
     pub attention_heads: i64,
     /// Which frames a context frame attends to in the causal layers (`causal`, the authors', or `full`).
     pub context_attention: ContextAttention,
@@ -103,6 +105,7 @@ pub struct ModelConfig {
     pub task_pass: TaskPass,
     /// Softmax temperature; default sqrt(feature channels), 512 in the paper.
     pub attention_temperature: Option<f64>,
+    /// Dropout probability after the positional encoding, in the attention layers and the embedding MLPs.
     pub dropout: f64,
     /// Hidden width of the frame and task embedding MLPs.
     pub embed_hidden: i64,

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
 /// How a robot's scripted expert turns its downward-pointing gripper about the vertical.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum GripperYaw {
     /// One orientation for the whole episode, the robot's rest yaw (the authors' Panda expert): the agent's task
@@ -31,7 +31,7 @@ pub enum GripperYaw {
 }
 
 /// World settings shared by collection and evaluation.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct WorldConfig {
     /// Frame size handed to the policy.

@@ -8,11 +8,15 @@ use serde::{Deserialize, Serialize};
 use tch::{Device, Tensor};
 
 /// Weights of the three losses; 0 switches a loss off (the loss ablations).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LossWeights {
+    /// Behaviour cloning: the NLL of the expert's actions under the mixture head.
     pub bc: f64,
+    /// Inverse dynamics: the NLL of each action from the frames before and after it (the paper's ablation sets
+    /// it to 0).
     pub inverse: f64,
+    /// The end-effector pixel at the end of the window, from the task embedding.
     pub point: f64,
     /// Grasp-and-drop position regression (metres squared): DAML's auxiliary loss, which the authors add
     /// unweighted (1), and `model.pose_head`'s.
@@ -49,7 +53,7 @@ impl Default for LossWeights {
 }
 
 /// How the learning rate moves over training.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum LrSchedule {
     /// `lr` throughout (the authors').
@@ -61,7 +65,7 @@ pub enum LrSchedule {
 }
 
 /// Layout of image tensors in the trunk; the numbers are the same, the speed is not.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum MemoryFormat {
     /// Channels before rows and columns (NCHW), PyTorch's default.
@@ -72,7 +76,7 @@ pub enum MemoryFormat {
 }
 
 /// Where training frames are augmented and normalised.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum AugmentOn {
     /// By the threads that build each batch, on the host.
@@ -84,7 +88,7 @@ pub enum AugmentOn {
 }
 
 /// The number type of the forward pass.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Precision {
     /// Everything in fp32 (the authors').
@@ -102,15 +106,20 @@ impl Precision {
 }
 
 /// How to train.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrainConfig {
+    /// Optimiser steps (the authors evaluate after 60,000).
     pub steps: u64,
+    /// Training samples (demonstration and agent window pairs) per step.
     pub batch_size: usize,
+    /// Adam's learning rate (the peak of the cosine schedule).
     pub lr: f64,
+    /// How the learning rate moves over training (`constant`, the authors', or `cosine`).
     pub lr_schedule: LrSchedule,
     /// Warm-up steps of the cosine schedule.
     pub lr_warmup: u64,
+    /// Seeds the network's initial weights, the batches and dropout; the grid's `seeds` set it per cell.
     pub seed: u64,
     /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N`.
     pub device: String,

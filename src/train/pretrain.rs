@@ -21,7 +21,7 @@ use tch::nn::{self, Module, ModuleT, OptimizerConfig};
 use tch::{Device, Kind, Tensor};
 
 /// What the check regresses from a first frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum LocaliseTarget {
     /// The grasp position of the trajectory's task, with the task as a one-hot input.
@@ -55,12 +55,17 @@ pub struct LocaliseConfig {
 /// The `[pretrain]` section of an experiment: a stage that trains the policy's image trunk on this check's
 /// regression over the agent collection's first frames, then starts the policy from it in place of
 /// `model.pretrained_backbone`. A departure: the authors start from ImageNet weights (the section absent).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PretrainConfig {
+    /// What the trunk regresses from a first frame: the four objects' positions (`objects`) or the task's grasp
+    /// position (`grasp`).
     pub target: LocaliseTarget,
+    /// Optimiser steps.
     pub steps: u64,
+    /// Frames per step.
     pub batch: i64,
+    /// Adam's learning rate.
     pub lr: f64,
     /// Training frames are augmented with these ranges; absent, not at all.
     pub augmentation: Option<Augmentation>,

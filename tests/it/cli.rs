@@ -265,3 +265,33 @@ fn overrides_change_the_keys_they_touch_and_are_recorded_with_the_experiment() {
     assert!(plan(&[]).contains("1 stages to run"), "{}", plan(&[]));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_reference_pages_are_what_the_code_generates() {
+    for (page, file) in [("config", "docs/reference/config.md"), ("cli", "docs/reference/commands.md")] {
+        let out = oneshot().args(["reference", page]).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let generated = String::from_utf8(out.stdout).unwrap();
+        let kept = std::fs::read_to_string(file).unwrap_or_default();
+        assert!(
+            generated == kept,
+            "{file} is stale: regenerate it with `oneshot-lab reference {page} > {file}` (first differing line: {:?})",
+            generated.lines().zip(kept.lines()).find(|(a, b)| a != b)
+        );
+        // Every row says what its key or option does.
+        let empty = generated.lines().filter(|l| l.starts_with("| `") && l.ends_with("|  |")).collect::<Vec<_>>();
+        assert!(empty.is_empty(), "{file}: rows without a description: {empty:?}");
+    }
+}
+
+#[test]
+fn completion_scripts_list_the_commands_and_their_options() {
+    for shell in ["bash", "zsh", "fish"] {
+        let out = oneshot().args(["completions", shell]).output().unwrap();
+        assert!(out.status.success(), "{shell}");
+        let script = String::from_utf8_lossy(&out.stdout);
+        for word in ["oneshot-lab", "report", "profile", "only", "channels_last"] {
+            assert!(script.contains(word), "{shell}: no `{word}`");
+        }
+    }
+}
