@@ -31,6 +31,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Reference(a) => cli::reference::reference(a),
         Command::Completions(a) => cli::reference::completions(a),
         Command::Why(a) => cli::inspect::why(a),
+        Command::Diff(a) => cli::diff::diff(a),
         Command::Status(a) => cli::inspect::status(a),
         Command::Cancel(a) => cli::orchestrate::cancel(a),
         Command::Query(a) => cli::inspect::query(a),

@@ -4,6 +4,7 @@
 use super::bench::{BenchEvalArgs, BenchLoaderArgs, BenchPlanArgs, BenchTrainArgs};
 use super::bench_world::BenchWorldArgs;
 use super::config::ConfigArgs;
+use super::diff::DiffArgs;
 use super::eval::{EvalArgs, LocaliseArgs, ProbeArgs};
 use super::inspect::{GcArgs, QueryArgs, ReportArgs, StatusArgs, WhyArgs};
 use super::orchestrate::{CancelArgs, PlanArgs, RunArgs, RunStageArgs};
@@ -49,6 +50,8 @@ pub enum Command {
     Config(ConfigArgs),
     /// Why a stage would run: its inputs against the nearest cached stage of its kind.
     Why(WhyArgs),
+    /// Two stages or two cells side by side: the inputs that differ and the metrics each recorded.
+    Diff(DiffArgs),
     /// Stages by kind and status, running attempts and Slurm jobs, and recent failures (records what finished
     /// Slurm jobs did).
     Status(StatusArgs),

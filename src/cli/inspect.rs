@@ -1,14 +1,15 @@
 //! `why`, `status`, `query`, `gc` and `report`: looking into (and tidying) the results store.
-use super::options::{StoreArgs, StoreDir};
+use super::options::{OutputFormat, StoreArgs, StoreDir};
 use anyhow::{Result, bail};
 use oneshot_lab::config::Experiment;
+use oneshot_lab::pipeline::executor::staging_dir;
 use oneshot_lab::pipeline::gc::{folder_size, remove_artifacts, unused_artifacts};
 use oneshot_lab::pipeline::graph::short;
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::slurm::detached;
 use oneshot_lab::pipeline::store::jobs::SLURM_HOST;
 use oneshot_lab::pipeline::store::read::StageRecord;
-use oneshot_lab::pipeline::store::{DATABASE, Store, now};
+use oneshot_lab::pipeline::store::{DATABASE, Store, alive, host, now};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 
@@ -19,6 +20,9 @@ pub struct WhyArgs {
     pub stage: String,
     #[command(flatten)]
     pub store: StoreDir,
+    /// Text for people or JSON for scripts.
+    #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
+    pub format: OutputFormat,
 }
 
 /// Arguments of the `status` command.
@@ -26,6 +30,9 @@ pub struct WhyArgs {
 pub struct StatusArgs {
     #[command(flatten)]
     pub store: StoreDir,
+    /// Text for people or JSON for scripts.
+    #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
+    pub format: OutputFormat,
 }
 
 /// Arguments of the `query` command.
@@ -90,25 +97,29 @@ fn flatten(prefix: &str, v: &serde_json::Value, out: &mut BTreeMap<String, Strin
     }
 }
 
-/// The lines that tell `other`'s inputs (a cached stage) from `stage`'s.
-fn differences(stage: &StageRecord, other: &StageRecord) -> Vec<String> {
-    let (mut mine, mut theirs) = (BTreeMap::new(), BTreeMap::new());
-    flatten("", &stage.inputs, &mut mine);
-    flatten("", &other.inputs, &mut theirs);
-    let keys: BTreeSet<&String> = mine.keys().chain(theirs.keys()).collect();
+/// One input in which two stages differ: its dotted name and each stage's value (`(absent)` where it has none).
+#[derive(serde::Serialize)]
+pub struct Difference {
+    pub input: String,
+    pub a: String,
+    pub b: String,
+}
+
+/// The inputs (and upstream stages, as `upstream`) in which stage `a` differs from stage `b`.
+pub fn differences(a: &StageRecord, b: &StageRecord) -> Vec<Difference> {
+    let (mut left, mut right) = (BTreeMap::new(), BTreeMap::new());
+    flatten("", &a.inputs, &mut left);
+    flatten("", &b.inputs, &mut right);
+    let keys: BTreeSet<&String> = left.keys().chain(right.keys()).collect();
     let show = |v: Option<&String>| v.cloned().unwrap_or_else(|| "(absent)".into());
-    let mut d: Vec<String> = keys
+    let mut d: Vec<Difference> = keys
         .into_iter()
-        .filter(|k| mine.get(*k) != theirs.get(*k))
-        .map(|k| format!("  {k}: {} (cached) -> {} (this stage)", show(theirs.get(k)), show(mine.get(k))))
+        .filter(|k| left.get(*k) != right.get(*k))
+        .map(|k| Difference { input: k.clone(), a: show(left.get(k)), b: show(right.get(k)) })
         .collect();
-    if other.upstream != stage.upstream {
+    if a.upstream != b.upstream {
         let keys = |ks: &[String]| ks.iter().map(|k| short(k)).collect::<Vec<_>>().join(",");
-        d.push(format!(
-            "  upstream stages: {} (cached) -> {} (this stage)",
-            keys(&other.upstream),
-            keys(&stage.upstream)
-        ));
+        d.push(Difference { input: "upstream".into(), a: keys(&a.upstream), b: keys(&b.upstream) });
     }
     d
 }
@@ -117,20 +128,25 @@ fn differences(stage: &StageRecord, other: &StageRecord) -> Vec<String> {
 /// the same kind.
 pub fn why(a: WhyArgs) -> Result<()> {
     let store = Store::open_existing(&a.store.store)?;
-    let found = store.stages_with_prefix(&a.stage)?;
-    let stage = match found.as_slice() {
-        [one] => one,
-        [] => bail!(
-            "no stage key starts with `{}` in {} (run `plan` or `run` first)",
-            a.stage,
-            a.store.store.join(DATABASE).display()
-        ),
-        many => bail!("`{}` matches {} stages; give more of the key", a.stage, many.len()),
-    };
-    println!("{} stage {} is {}", stage.kind, stage.key, stage.status);
+    let stage = one_stage(&store, &a.store, &a.stage)?;
     let done = store.done_stages(&stage.kind)?;
     let nearest =
-        done.iter().filter(|o| o.key != stage.key).map(|o| (differences(stage, o), o)).min_by_key(|(d, _)| d.len());
+        done.iter().filter(|o| o.key != stage.key).map(|o| (differences(&stage, o), o)).min_by_key(|(d, _)| d.len());
+    if a.format == OutputFormat::Json {
+        let out = serde_json::json!({
+            "kind": stage.kind,
+            "key": stage.key,
+            "status": stage.status,
+            "nearest_cached": nearest.as_ref().map(|(d, o)| serde_json::json!({
+                "key": o.key,
+                "differences": d.iter().map(|d| serde_json::json!({ "input": d.input, "cached": d.b, "this": d.a }))
+                    .collect::<Vec<_>>(),
+            })),
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!("{} stage {} is {}", stage.kind, stage.key, stage.status);
     match (stage.status.as_str(), nearest) {
         ("done", _) => println!("it is cached; a run reuses it"),
         (_, None) => println!("no {} stage is cached yet, so every input is new", stage.kind),
@@ -139,22 +155,74 @@ pub fn why(a: WhyArgs) -> Result<()> {
         }
         (_, Some((d, o))) => {
             println!("nearest cached {} stage {} differs in {} field(s):", stage.kind, short(&o.key), d.len());
-            for line in d {
-                println!("{line}");
+            for d in d {
+                println!("  {}: {} (cached) -> {} (this stage)", d.input, d.b, d.a);
             }
         }
     }
     Ok(())
 }
 
-/// Prints stage counts by kind and status, running attempts and recent failures.
+/// The one stage whose key starts with `prefix`.
+pub fn one_stage(store: &Store, dir: &StoreDir, prefix: &str) -> Result<StageRecord> {
+    let mut found = store.stages_with_prefix(prefix)?;
+    match found.len() {
+        1 => Ok(found.remove(0)),
+        0 => bail!(
+            "no stage key starts with `{prefix}` in {} (run `plan` or `run` first)",
+            dir.store.join(DATABASE).display()
+        ),
+        n => bail!("`{prefix}` matches {n} stages; give more of the key"),
+    }
+}
+
+/// Prints stage counts by kind and status, running attempts (and whether their process is still alive) and
+/// recent failures.
 pub fn status(a: StatusArgs) -> Result<()> {
     let mut store = Store::open_existing(&a.store.store)?;
-    println!("store {}", a.store.store.join(DATABASE).display());
+    let mut warnings = Vec::new();
     let slurm = detached::catch_up(&mut store, &a.store.store).unwrap_or_else(|e| {
-        println!("  warning: Slurm jobs not checked: {e:#}");
+        warnings.push(format!("Slurm jobs not checked: {e:#}"));
         Default::default()
     });
+    let this_host = host();
+    let running: Vec<_> = store
+        .running_attempts()?
+        .into_iter()
+        .filter(|r| r.host != SLURM_HOST)
+        .map(|r| {
+            // A holder on this machine whose process is gone died without recording it: the next run takes over.
+            let live = if r.host == this_host { Some(alive(r.pid)) } else { None };
+            let progress =
+                (r.kind == "train").then(|| training_progress(&store, &a.store, &r.key, r.started_at)).flatten();
+            (r, live, progress)
+        })
+        .collect();
+    let failures = store.recent_failures(5)?;
+    if a.format == OutputFormat::Json {
+        let out = serde_json::json!({
+            "store": a.store.store.join(DATABASE),
+            "warnings": warnings,
+            "slurm_caught_up": { "finished": slurm.completed.len(), "without_results": slurm.failed.len() },
+            "stages": store.stage_counts()?.into_iter()
+                .map(|(kind, status, n)| serde_json::json!({ "kind": kind, "status": status, "count": n }))
+                .collect::<Vec<_>>(),
+            "slurm_jobs": slurm.live.iter().map(|(job, entry)| detached::describe(job, entry)).collect::<Vec<_>>(),
+            "running": running.iter().map(|(r, live, progress)| serde_json::json!({
+                "kind": r.kind, "key": r.key, "host": r.host, "pid": r.pid,
+                "seconds": now() - r.started_at, "process_alive": live, "training": progress,
+            })).collect::<Vec<_>>(),
+            "recent_failures": failures.iter()
+                .map(|f| serde_json::json!({ "kind": f.kind, "key": f.key, "error": f.error }))
+                .collect::<Vec<_>>(),
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!("store {}", a.store.store.join(DATABASE).display());
+    for w in &warnings {
+        println!("  warning: {w}");
+    }
     if !slurm.completed.is_empty() || !slurm.failed.is_empty() {
         println!(
             "  caught up with Slurm: {} jobs finished, {} ended without results",
@@ -168,20 +236,74 @@ pub fn status(a: StatusArgs) -> Result<()> {
     for (job, entry) in &slurm.live {
         println!("  slurm: {}", detached::describe(job, entry));
     }
-    for r in store.running_attempts()?.into_iter().filter(|r| r.host != SLURM_HOST) {
+    for (r, live, progress) in &running {
+        let what =
+            if *live == Some(false) { "stale (its process is gone; the next run takes it over)" } else { "running" };
         println!(
-            "  running: {} {} on {} pid {} for {:.0} s",
+            "  {what}: {} {} on {} pid {} for {:.0} s",
             r.kind,
             short(&r.key),
             r.host,
             r.pid,
             now() - r.started_at
         );
+        if let Some(p) = progress {
+            println!("    {p}");
+        }
     }
-    for f in store.recent_failures(5)? {
+    for f in failures {
         println!("  failed: {} {}: {}", f.kind, short(&f.key), f.error.unwrap_or_default());
     }
     Ok(())
+}
+
+/// Where a running training stands, from the loss curve it keeps in its staging folder (readable while it
+/// runs, also from another machine on a shared filesystem): its latest curve point against its total steps.
+#[derive(serde::Serialize)]
+struct TrainingProgress {
+    step: u64,
+    steps: u64,
+    train_bc: Option<f64>,
+    val_bc: Option<f64>,
+    steps_per_second: f64,
+    seconds_left: Option<f64>,
+}
+
+impl std::fmt::Display for TrainingProgress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let bc = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
+        write!(
+            f,
+            "step {} of {}: train bc {}, val bc {}, {:.2} steps/s",
+            self.step,
+            self.steps,
+            bc(self.train_bc),
+            bc(self.val_bc),
+            self.steps_per_second
+        )?;
+        match self.seconds_left {
+            Some(s) => write!(f, ", about {:.0} min left", s / 60.0),
+            None => Ok(()),
+        }
+    }
+}
+
+fn training_progress(store: &Store, dir: &StoreDir, key: &str, started_at: f64) -> Option<TrainingProgress> {
+    let stage = one_stage(store, dir, key).ok()?;
+    let steps = stage.inputs.get("train")?.get("steps")?.as_u64()?;
+    let curve = staging_dir(&dir.store, key).join(oneshot_lab::train::CURVE_FILE);
+    let points = oneshot_lab::train::curve::read(&curve, u64::MAX).ok()?;
+    let step = points.iter().map(|p| p.step).max().unwrap_or(0);
+    let latest = |split: &str| points.iter().filter(|p| p.split == split).max_by_key(|p| p.step).map(|p| p.bc);
+    let rate = step as f64 / (now() - started_at).max(1.0);
+    Some(TrainingProgress {
+        step,
+        steps,
+        train_bc: latest("train"),
+        val_bc: latest("val"),
+        steps_per_second: rate,
+        seconds_left: (rate > 0.0).then(|| steps.saturating_sub(step) as f64 / rate),
+    })
 }
 
 fn text(v: &serde_json::Value) -> String {

@@ -5,6 +5,7 @@ pub mod args;
 pub mod bench;
 pub mod bench_world;
 pub mod config;
+pub mod diff;
 pub mod eval;
 pub mod inspect;
 pub mod options;

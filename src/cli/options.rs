@@ -95,3 +95,12 @@ pub fn parse_robot(s: &str) -> Result<Robot, String> {
 fn parse_visuals(s: &str) -> Result<Visuals, String> {
     parse_named(s)
 }
+
+/// How `plan`, `status` and `why` print.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OutputFormat {
+    /// Lines for people.
+    Text,
+    /// One JSON document for scripts.
+    Json,
+}

@@ -1,6 +1,6 @@
 //! `run`, `run-stage`, `plan` and `cancel`: an experiment file against the results store.
 use super::default_workers;
-use super::options::StoreArgs;
+use super::options::{OutputFormat, StoreArgs};
 use anyhow::{Context, Result, bail};
 use oneshot_lab::config::{Experiment, Grid, overrides};
 use oneshot_lab::pipeline::events::{RunEvent, RunEvents};
@@ -77,6 +77,9 @@ pub struct PlanArgs {
     pub file: PathBuf,
     #[command(flatten)]
     pub store: StoreArgs,
+    /// Text for people or JSON for scripts.
+    #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
+    pub format: OutputFormat,
 }
 
 /// Arguments of the `cancel` command.
@@ -223,11 +226,69 @@ fn state_word(s: &StageState) -> &'static str {
     }
 }
 
+/// One stage of a cell in `plan`'s output.
+#[derive(serde::Serialize)]
+struct PlannedStage {
+    kind: &'static str,
+    key: String,
+    state: &'static str,
+    /// The training step of a checkpoint's evaluation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    step: Option<u64>,
+}
+
 /// Prints the grid as cells x stages with their state and an estimate of the time left.
 pub fn plan(a: PlanArgs) -> Result<()> {
     let (experiment, plan) = load_plan(&a.file, &a.store.resolution())?;
     let mut store = Store::open(&a.store.dir.store)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
+    let stage = |kind: &'static str, key: &str, step: Option<u64>| -> Result<PlannedStage> {
+        Ok(PlannedStage { kind, key: key.to_string(), state: state_word(&store.state(key)?), step })
+    };
+    let mut cells = Vec::new();
+    for c in &plan.cells {
+        let mut stages = Vec::new();
+        for (kind, key) in [
+            ("collect sawyer", &c.collect_demo),
+            ("collect panda", &c.collect_agent),
+            ("pretrain", &c.pretrain),
+            ("train", &c.train),
+        ] {
+            if let Some(k) = key {
+                stages.push(stage(kind, k, None)?);
+            }
+        }
+        stages.push(stage("eval", &c.eval, None)?);
+        for (step, k) in &c.checkpoints {
+            stages.push(stage("eval", k, Some(*step))?);
+        }
+        cells.push((c.name.clone(), stages));
+    }
+    let (mut estimate, mut unknown, mut todo) = (0.0, 0, 0);
+    for s in plan.stages.values() {
+        if store.state(&s.key)? == StageState::Done {
+            continue;
+        }
+        todo += 1;
+        match store.mean_seconds(s.kind().name())? {
+            Some(t) => estimate += t,
+            None => unknown += 1,
+        }
+    }
+    if a.format == OutputFormat::Json {
+        let cells: Vec<_> =
+            cells.iter().map(|(name, stages)| serde_json::json!({ "cell": name, "stages": stages })).collect();
+        let out = serde_json::json!({
+            "experiment": experiment.name,
+            "distinct_stages": plan.stages.len(),
+            "cells": cells,
+            "to_run": todo,
+            "estimated_seconds": (todo > unknown).then_some(estimate),
+            "not_estimated": unknown,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
     println!("{}: {} cells, {} distinct stages", experiment.name, plan.cells.len(), plan.stages.len());
     if experiment.grid.nested {
         let separate = Experiment { grid: Grid { nested: false, ..experiment.grid.clone() }, ..experiment.clone() };
@@ -242,35 +303,20 @@ pub fn plan(a: PlanArgs) -> Result<()> {
             );
         }
     }
-    println!("{:<28} {:<20} {:<20} {:<20} {:<20}", "cell", "collect sawyer", "collect panda", "train", "eval");
-    let cell_state = |k: &Option<String>| -> Result<String> {
-        Ok(match k {
-            Some(k) => format!("{} {}", state_word(&store.state(k)?), short(k)),
-            None => "-".into(),
-        })
-    };
-    for c in &plan.cells {
-        let evals = std::iter::once(&c.eval).chain(c.checkpoints.iter().map(|(_, k)| k));
-        let eval_states: Vec<String> = evals.map(|k| cell_state(&Some(k.clone()))).collect::<Result<_>>()?;
+    let columns = ["collect sawyer", "collect panda", "pretrain", "train"];
+    println!("{:<28} {:<20} {:<20} {:<20} {:<20} eval", "cell", columns[0], columns[1], columns[2], columns[3]);
+    for (name, stages) in &cells {
+        let shown = |s: &PlannedStage| format!("{} {}", s.state, short(&s.key));
+        let column = |kind: &str| stages.iter().find(|s| s.kind == kind).map_or("-".to_string(), shown);
+        let evals: Vec<String> = stages.iter().filter(|s| s.kind == "eval").map(shown).collect();
         println!(
-            "{:<28} {:<20} {:<20} {:<20} {}",
-            c.name,
-            cell_state(&c.collect_demo)?,
-            cell_state(&c.collect_agent)?,
-            cell_state(&c.train)?,
-            eval_states.join(", ")
+            "{name:<28} {:<20} {:<20} {:<20} {:<20} {}",
+            column(columns[0]),
+            column(columns[1]),
+            column(columns[2]),
+            column(columns[3]),
+            evals.join(", ")
         );
-    }
-    let (mut estimate, mut unknown, mut todo) = (0.0, 0, 0);
-    for s in plan.stages.values() {
-        if store.state(&s.key)? == StageState::Done {
-            continue;
-        }
-        todo += 1;
-        match store.mean_seconds(s.kind().name())? {
-            Some(t) => estimate += t,
-            None => unknown += 1,
-        }
     }
     print!("{todo} stages to run");
     if todo > unknown {

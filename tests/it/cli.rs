@@ -263,6 +263,100 @@ fn overrides_change_the_keys_they_touch_and_are_recorded_with_the_experiment() {
     };
     assert!(plan(&["--set", "eval.horizon=4"]).contains("0 stages to run"), "{}", plan(&["--set", "eval.horizon=4"]));
     assert!(plan(&[]).contains("1 stages to run"), "{}", plan(&[]));
+
+    // `plan --format json` names each stage's key and state; `diff` puts the two evaluations side by side.
+    let json: serde_json::Value = serde_json::from_str(&plan(&["--format", "json"])).unwrap();
+    assert_eq!(json["to_run"], serde_json::json!(1));
+    let planned = json["cells"][0]["stages"][0].clone();
+    assert_eq!((planned["kind"].as_str(), planned["state"].as_str()), (Some("eval"), Some("to run")));
+    run(&[]);
+    let keys: Vec<String> = conn
+        .prepare("SELECT key FROM stages WHERE kind = 'eval' ORDER BY key")
+        .unwrap()
+        .query_map([], |r| r.get(0))
+        .unwrap()
+        .collect::<Result<_, _>>()
+        .unwrap();
+    assert_eq!(keys.len(), 2);
+    let diff = |format: &str| {
+        let args = ["diff", &keys[0][..10], &keys[1][..10], "--store", store.to_str().unwrap(), "--format", format];
+        let out = oneshot().args(args).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let json: serde_json::Value = serde_json::from_str(&diff("json")).unwrap();
+    let differences = json[0]["differences"].as_array().unwrap();
+    assert_eq!(differences.len(), 1, "{json}");
+    assert_eq!(differences[0]["input"], serde_json::json!("eval.horizon"));
+    let names: Vec<&str> = json[0]["metrics"].as_array().unwrap().iter().filter_map(|m| m["name"].as_str()).collect();
+    assert!(!names.is_empty() && json[0]["metrics"][0]["a"].is_number(), "{json}");
+    assert!(diff("text").contains("eval.horizon: "), "{}", diff("text"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn reading_the_store_never_writes_and_status_tells_a_dead_holder_from_a_live_one() {
+    let dir = scratch("cli-read-only");
+    let store = dir.join("store");
+    let out = oneshot().args(["plan", "experiments/smoke.toml", "--store", store.to_str().unwrap()]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let outside = dir.join("outside.db");
+    for sql in [
+        format!("VACUUM INTO '{}'", outside.display()),
+        format!("ATTACH DATABASE '{}' AS x", outside.display()),
+        "CREATE TABLE t(a INTEGER)".to_string(),
+        "PRAGMA journal_mode = DELETE".to_string(),
+        "DELETE FROM stages".to_string(),
+    ] {
+        let out = oneshot().args(["query", &sql, "--store", store.to_str().unwrap()]).output().unwrap();
+        assert!(!out.status.success(), "{sql} succeeded");
+    }
+    assert!(!outside.exists(), "a query wrote a file outside the store");
+    let count = |sql: &str| {
+        let out = oneshot().args(["query", sql, "--store", store.to_str().unwrap(), "--format", "json"]).output();
+        let rows: serde_json::Value = serde_json::from_slice(&out.unwrap().stdout).unwrap();
+        rows[0]["n"].as_i64().unwrap()
+    };
+    assert!(count("SELECT COUNT(*) AS n FROM stages") > 0);
+
+    // `why` matches key prefixes as text: `%` and `_` are not wildcards.
+    for pattern in ["%", "_"] {
+        let out = oneshot().args(["why", pattern, "--store", store.to_str().unwrap()]).output().unwrap();
+        assert!(!out.status.success());
+        assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("no stage key starts with `{pattern}`")));
+    }
+
+    // An attempt whose process on this machine is gone shows as stale; a live one as running.
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap().trim().to_string();
+    let keys: Vec<String> = conn
+        .prepare("SELECT key FROM stages LIMIT 2")
+        .unwrap()
+        .query_map([], |r| r.get(0))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    let mut child = std::process::Command::new("sleep").arg("30").spawn().unwrap();
+    for (key, pid) in [(&keys[0], 999_999_999i64), (&keys[1], child.id() as i64)] {
+        conn.execute(
+            "INSERT INTO attempts (stage_key, status, host, pid, started_at) VALUES (?1, 'running', ?2, ?3, 0)",
+            rusqlite::params![key, host, pid],
+        )
+        .unwrap();
+    }
+    let out = oneshot().args(["status", "--store", store.to_str().unwrap(), "--format", "json"]).output().unwrap();
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let alive: Vec<(String, bool)> = json["running"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| (r["key"].as_str().unwrap().to_string(), r["process_alive"].as_bool().unwrap()))
+        .collect();
+    assert_eq!(alive, [(keys[0].clone(), false), (keys[1].clone(), true)]);
+    let out = oneshot().args(["status", "--store", store.to_str().unwrap()]).output().unwrap();
+    assert!(String::from_utf8_lossy(&out.stdout).contains("stale (its process is gone"));
+    child.kill().unwrap();
+    let _ = child.wait();
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -73,7 +73,7 @@ pub fn host() -> String {
 }
 
 /// Whether process `pid` is alive on this machine.
-fn alive(pid: i64) -> bool {
+pub fn alive(pid: i64) -> bool {
     Path::new(&format!("/proc/{pid}")).exists()
 }
 

@@ -235,9 +235,29 @@ impl Store {
             .collect()
     }
 
-    /// Stages whose key starts with `prefix`.
+    /// Stages whose key starts with `prefix` (compared as text: `%` and `_` are plain characters).
     pub fn stages_with_prefix(&self, prefix: &str) -> Result<Vec<StageRecord>> {
-        self.stage_records("key LIKE ?1 || '%'", prefix)
+        self.stage_records("substr(key, 1, length(?1)) = ?1", prefix)
+    }
+
+    /// The metrics a finished stage recorded, by name.
+    pub fn metrics(&self, stage_key: &str) -> Result<Vec<(String, f64)>> {
+        let mut stmt = self.conn.prepare("SELECT name, value FROM metrics WHERE stage_key = ?1 ORDER BY name")?;
+        let rows = stmt.query_map([stage_key], |r| Ok((r.get(0)?, r.get(1)?)))?.collect::<rusqlite::Result<_>>()?;
+        Ok(rows)
+    }
+
+    /// Recorded cells called `cell` (in any experiment, or in `experiment` only): (experiment, record).
+    pub fn cells_named(&self, experiment: Option<&str>, cell: &str) -> Result<Vec<(String, CellRecord)>> {
+        let mut stmt =
+            self.conn.prepare("SELECT DISTINCT experiment FROM cells WHERE cell = ?1 ORDER BY experiment")?;
+        let names: Vec<String> = stmt.query_map([cell], |r| r.get(0))?.collect::<rusqlite::Result<_>>()?;
+        let mut out = Vec::new();
+        for name in names.into_iter().filter(|n| experiment.is_none_or(|e| e == n)) {
+            let found = self.cells(&name)?.into_iter().find(|c| c.cell == cell);
+            out.extend(found.map(|c| (name.clone(), c)));
+        }
+        Ok(out)
     }
 
     /// Finished stages of `kind`.
@@ -292,13 +312,19 @@ impl Store {
         if !path.is_file() {
             bail!("no results store at {} (run an experiment there first, or pass --store)", path.display());
         }
-        let conn = rusqlite::Connection::open_with_flags(&path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+        let mut conn = rusqlite::Connection::open_with_flags(&path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
             .with_context(|| format!("opening {}", path.display()))?;
+        // A read-only connection still lets `ATTACH` create a file and `VACUUM INTO` write one: the authorizer
+        // lets a statement only read, and a statement SQLite does not call read-only is refused too.
+        conn.authorizer(Some(reads_only)).context("installing the read-only authorizer")?;
         let sql = NAMED_QUERIES.iter().find(|(n, _)| *n == what).map_or(what, |(_, q)| *q);
         let mut stmt = conn.prepare(sql).with_context(|| {
             let names: Vec<&str> = NAMED_QUERIES.iter().map(|(n, _)| *n).collect();
-            format!("`{what}` is neither a named query ({}) nor valid SQL", names.join(", "))
+            format!("`{what}` is neither a named query ({}) nor SQL that only reads", names.join(", "))
         })?;
+        if !stmt.readonly() {
+            bail!("`{what}` would change the store or another file: query runs only statements that read");
+        }
         let columns: Vec<String> = stmt.column_names().map(|c| c.to_string()).collect();
         let mut rows = stmt.query([])?;
         let mut out = Vec::new();
@@ -306,5 +332,16 @@ impl Store {
             out.push((0..columns.len()).map(|i| row.get_ref(i).map(value_json)).collect::<rusqlite::Result<_>>()?);
         }
         Ok(QueryRows { columns, rows: out })
+    }
+}
+
+/// The authorizer of `query`'s connection: reading tables and calling functions, nothing else.
+fn reads_only(ctx: rusqlite::hooks::AuthContext<'_>) -> rusqlite::hooks::Authorization {
+    use rusqlite::hooks::{AuthAction, Authorization};
+    match ctx.action {
+        AuthAction::Select | AuthAction::Read { .. } | AuthAction::Function { .. } | AuthAction::Recursive => {
+            Authorization::Allow
+        }
+        _ => Authorization::Deny,
     }
 }
