@@ -304,13 +304,14 @@ pub fn plan(a: PlanArgs) -> Result<()> {
         }
     }
     let columns = ["collect sawyer", "collect panda", "pretrain", "train"];
-    println!("{:<28} {:<20} {:<20} {:<20} {:<20} eval", "cell", columns[0], columns[1], columns[2], columns[3]);
+    let width = cells.iter().map(|(name, _)| name.len()).max().unwrap_or(0).max(28);
+    println!("{:<width$} {:<20} {:<20} {:<20} {:<20} eval", "cell", columns[0], columns[1], columns[2], columns[3]);
     for (name, stages) in &cells {
         let shown = |s: &PlannedStage| format!("{} {}", s.state, short(&s.key));
         let column = |kind: &str| stages.iter().find(|s| s.kind == kind).map_or("-".to_string(), shown);
         let evals: Vec<String> = stages.iter().filter(|s| s.kind == "eval").map(shown).collect();
         println!(
-            "{name:<28} {:<20} {:<20} {:<20} {:<20} {}",
+            "{name:<width$} {:<20} {:<20} {:<20} {:<20} {}",
             column(columns[0]),
             column(columns[1]),
             column(columns[2]),

@@ -12,6 +12,7 @@ use anyhow::{Context, Result, bail};
 use file::{FileShape, line_of, located, merge, read_table};
 use rules::{reject_train_seed, resolve, validate_grid};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 pub use crate::data::collect_config::CollectSettings;
@@ -80,11 +81,23 @@ pub struct Grid {
     /// authors' protocol), each with a pool of its own size under `collect.layouts = "shared"`. With
     /// `collect.layouts = "unique"` a size's trajectories are the same either way.
     pub nested: bool,
+    /// Sweeps of any section key, e.g. `"train.lr" = [1e-3, 3e-3]`: each value makes a variant of every variant
+    /// in `variants` (named from it, the key's last part and the value: `full-lr-0.001`), crossed with the
+    /// sizes and seeds; several keys cross with each other.
+    #[schemars(with = "BTreeMap<String, Vec<serde_json::Value>>")]
+    pub sweep: BTreeMap<String, Vec<toml::Value>>,
 }
 
 impl Default for Grid {
     fn default() -> Self {
-        Grid { sizes: vec![1600], variants: vec![FULL.into()], seeds: vec![0], references: Vec::new(), nested: true }
+        Grid {
+            sizes: vec![1600],
+            variants: vec![FULL.into()],
+            seeds: vec![0],
+            references: Vec::new(),
+            nested: true,
+            sweep: BTreeMap::new(),
+        }
     }
 }
 
@@ -153,7 +166,7 @@ impl Experiment {
             merge(&mut table, &over);
         }
         for o in &resolution.overrides {
-            check_alone(o)?;
+            check_alone(o, "--set")?;
             o.apply(&mut table)?;
         }
         let mut what = match profile {
@@ -188,12 +201,17 @@ impl Experiment {
                 .with_context(|| format!("{file}: variant names become cell and folder names"))?;
         }
 
+        let sweep = sweep_points(&grid.sweep).with_context(|| format!("{file}: grid.sweep"))?;
         let mut cells = Vec::new();
-        for variant in &grid.variants {
+        for (variant, swept) in grid.variants.iter().flat_map(|v| sweep.iter().map(move |p| (v, p))) {
             let mut t = base_table.clone();
             if variant != FULL {
                 merge(&mut t, &variants[variant]);
             }
+            for o in &swept.overrides {
+                o.apply(&mut t)?;
+            }
+            let variant = &format!("{variant}{}", swept.suffix);
             let resolved = resolve(&t, &file, &format!("variant `{variant}`"), &text)?;
             let tasks = resolved.collect.tasks.len();
             for &size in &grid.sizes {
@@ -221,10 +239,57 @@ impl Experiment {
     }
 }
 
-/// Types one override on its own (a section key against its section, a variant's key against the sections, a
+/// One point of a grid's sweep: the keys it sets and the suffix it adds to a variant's name.
+struct SweepPoint {
+    overrides: Vec<Override>,
+    suffix: String,
+}
+
+/// Every combination of the sweep's values (one point with nothing set when there is no sweep); each key is
+/// typed like a `--set`, and two values that would name the same variant are refused.
+fn sweep_points(sweep: &BTreeMap<String, Vec<toml::Value>>) -> Result<Vec<SweepPoint>> {
+    let mut points = vec![SweepPoint { overrides: Vec::new(), suffix: String::new() }];
+    for (key, values) in sweep {
+        if values.is_empty() {
+            bail!("`{key}` has no values");
+        }
+        let path: Vec<String> = key.split('.').map(str::to_string).collect();
+        let leaf = path.last().cloned().unwrap_or_default();
+        let mut named = std::collections::BTreeSet::new();
+        let mut next = Vec::new();
+        for value in values {
+            let o = Override { path: path.clone(), value: value.clone() };
+            if !matches!(
+                path.first().map(String::as_str),
+                Some("world" | "collect" | "model" | "pretrain" | "train" | "eval")
+            ) {
+                bail!("`{key}` is not a key of a section (world, collect, model, pretrain, train or eval)");
+            }
+            check_alone(&o, "grid.sweep")?;
+            let shown = match value {
+                toml::Value::String(s) => s.clone(),
+                v => v.to_string(),
+            };
+            let shown: String =
+                shown.chars().map(|c| if c.is_ascii_alphanumeric() || "._-".contains(c) { c } else { '_' }).collect();
+            if !named.insert(shown.clone()) {
+                bail!("`{key}` has two values that name the same variant (`{leaf}-{shown}`)");
+            }
+            for p in &points {
+                let mut overrides = p.overrides.clone();
+                overrides.push(o.clone());
+                next.push(SweepPoint { overrides, suffix: format!("{}-{leaf}-{shown}", p.suffix) });
+            }
+        }
+        points = next;
+    }
+    Ok(points)
+}
+
+/// Types one override (`label`: where it comes from, `--set` or `grid.sweep`) on its own (a section key against its section, a variant's key against the sections, a
 /// top-level key against the file's shape), so that an unknown key or a wrong type is reported against the
 /// override itself rather than a line of the file.
-fn check_alone(o: &Override) -> Result<()> {
+fn check_alone(o: &Override, label: &str) -> Result<()> {
     const SECTIONS: [&str; 6] = ["world", "collect", "model", "pretrain", "train", "eval"];
     let in_cell = match o.path.as_slice() {
         [variants, _, rest @ ..] if variants == "variants" && !rest.is_empty() => Some(rest),
@@ -235,7 +300,7 @@ fn check_alone(o: &Override) -> Result<()> {
     let typed = match in_cell {
         Some(path) => {
             if !SECTIONS.contains(&path[0].as_str()) {
-                bail!("--set {o}: `{}` is not a section (sections: {})", path[0], SECTIONS.join(", "));
+                bail!("{label} {o}: `{}` is not a section (sections: {})", path[0], SECTIONS.join(", "));
             }
             Override { path: path.to_vec(), value: o.value.clone() }.apply(&mut table)?;
             toml::Value::Table(table).try_into::<CellConfig>().map(drop)
@@ -245,7 +310,7 @@ fn check_alone(o: &Override) -> Result<()> {
             toml::Value::Table(table).try_into::<FileShape>().map(drop)
         }
     };
-    typed.map_err(|e| anyhow::anyhow!("--set {o}: {}", e.message()))
+    typed.map_err(|e| anyhow::anyhow!("{label} {o}: {}", e.message()))
 }
 
 impl CellConfig {

@@ -160,3 +160,47 @@ fn a_smaller_nested_size_pretrains_its_trunk_on_its_own_layouts() {
     assert!(p.stages[&small.train.clone().unwrap()].upstream.contains(&small_key));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_sweep_crosses_its_values_with_the_variants_and_seeds_and_changes_only_the_keys_it_touches() {
+    use oneshot_lab::pipeline::stages::plan;
+    let dir = crate::helpers::scratch("experiments-sweep");
+    let file = dir.join("exp.toml");
+    let write = |sweep: &str| {
+        std::fs::write(
+            &file,
+            format!(
+                "[collect]\ntasks = [0]\n[variants.no_inverse]\ntrain.loss.inverse = 0.0\n[grid]\nsizes = [16]\n\
+                 variants = [\"full\", \"no_inverse\"]\nseeds = [0, 1]\n[grid.sweep]\n{sweep}"
+            ),
+        )
+        .unwrap();
+    };
+    write("\"train.lr\" = [0.001, 0.003]\n\"model.context\" = [\"spread\", \"final\"]\n");
+    let e = Experiment::load(&file, &Resolution::default()).unwrap();
+    assert_eq!(e.cells.len(), 2 * 2 * 2 * 2, "variants x lr x context x seeds");
+    let cell = e.cells.iter().find(|c| c.name == "n16-no_inverse-context-final-lr-0.003-s1").unwrap();
+    assert_eq!(cell.config.train.lr, 0.003);
+    assert_eq!(cell.config.train.loss.inverse, 0.0, "the variant's own change stays");
+    assert_eq!(cell.config.model.context, oneshot_lab::model::config::ContextMode::Final);
+    assert_eq!(cell.config.train.seed, 1);
+    let p = plan(&e);
+    let of = |name: &str| p.cells.iter().find(|c| c.name == name).unwrap();
+    let (a, b) = (of("n16-full-context-spread-lr-0.001-s0"), of("n16-full-context-spread-lr-0.003-s0"));
+    assert_eq!(a.collect_agent, b.collect_agent, "the learning rate does not touch the collection");
+    assert_ne!(a.train, b.train);
+
+    for (sweep, named) in [
+        ("\"train.lrr\" = [0.1]\n", "grid.sweep train.lrr=0.1"),
+        ("\"train.lr\" = [\"fast\"]\n", "train.lr"),
+        ("\"train.lr\" = [-1.0]\n", "train.lr = -1"),
+        ("\"train.lr\" = []\n", "`train.lr` has no values"),
+        ("\"name\" = [\"x\"]\n", "`name` is not a key of a section"),
+        ("\"model.context\" = [\"final\", \"final\"]\n", "name the same variant"),
+    ] {
+        write(sweep);
+        let err = format!("{:#}", Experiment::load(&file, &Resolution::default()).unwrap_err());
+        assert!(err.contains(named) && err.contains("exp.toml"), "{sweep}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
