@@ -5,6 +5,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod curve;
 pub mod pretrain;
+pub mod tensorboard;
 pub mod throughput;
 
 use crate::data::loader::{AugmentAt, Batch, PrefetchSpec, Prefetcher, build_batch};
@@ -211,6 +212,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     if start == 0 {
         curve.push(mean_losses(&policy, &val, &config.loss, 0));
         curve::write(&curve_path, &curve)?;
+        tensorboard::write(&run.out.join(tensorboard::EVENTS_FILE), &curve)?;
     }
     let spec = PrefetchSpec {
         model: model.clone(),
@@ -251,6 +253,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
             bar.set_message(format!("train bc {:.3} val bc {:.3}", curve.last().map_or(0.0, |p| p.bc), v.bc));
             curve.push(v);
             curve::write(&curve_path, &curve)?;
+            tensorboard::write(&run.out.join(tensorboard::EVENTS_FILE), &curve)?;
         }
         if step % config.checkpoint_interval == 0 || step == config.steps {
             let path = checkpoint::path_for(&ckpt_dir, step);
