@@ -204,3 +204,22 @@ fn a_sweep_crosses_its_values_with_the_variants_and_seeds_and_changes_only_the_k
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn paper_base_spells_out_the_papers_values_and_they_are_the_defaults() {
+    use oneshot_lab::config::CellConfig;
+    let e = Experiment::load(Path::new("experiments/paper_base.toml"), &Resolution::default()).unwrap();
+    let b = &e.base;
+    // The paper and the authors' `base.yaml` (../shared/design.md): 240x320 frames at 10 Hz, ResNet-18 features
+    // into two attention layers of inner width 128, 40-wide embeddings, 2 logistic mixtures over 256 bins,
+    // Adam at 5e-4 with batch 30 for 60k steps, BC + inverse + 0.1 point, 160 test episodes of 60 actions.
+    assert_eq!((b.world.image.height, b.world.image.width, b.world.policy_hz), (240, 320, 10.0));
+    assert_eq!((b.model.backbone_width, b.model.attention_layers, b.model.attention_inner), (64, 2, 128));
+    assert_eq!((b.model.latent, b.model.mixtures, b.model.bins, b.model.dropout), (40, 2, 256, 0.2));
+    assert_eq!((b.model.context_frames, b.model.agent_frames), (4, 7));
+    assert_eq!((b.train.steps, b.train.batch_size, b.train.lr), (60_000, 30, 5e-4));
+    assert_eq!((b.train.loss.bc, b.train.loss.inverse, b.train.loss.point), (1.0, 1.0, 0.1));
+    assert_eq!((b.eval.episodes, b.eval.horizon), (160, 60));
+    // Every value it spells out is the built-in default: a change of a default shows up here.
+    assert_eq!(b, &CellConfig::default());
+}
