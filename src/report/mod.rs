@@ -1,5 +1,6 @@
 //! Reports: the paper's tables and figures for one experiment, rebuilt from the results store alone.
 pub mod data;
+pub mod html;
 pub mod paper;
 pub mod plots;
 pub mod tables;
@@ -140,6 +141,7 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     index += "\nStage keys are blake3 hashes of each stage's resolved configuration, its implementation version and \
               its upstream keys; `oneshot-lab why KEY` shows a stage's inputs.\n";
     write("index.md", &index)?;
+    write("index.html", &html::page(&index, &staging, experiment)?)?;
 
     if out.exists() && !out.join("index.md").is_file() {
         crate::fsio::remove_dir_if_present(&staging)?;

@@ -64,5 +64,11 @@ fn the_smoke_experiment_runs_the_whole_chain_and_reports() {
         let frames = image::AnimationDecoder::into_frames(decoder).count();
         assert!(frames > 20, "{v} has {frames} frames");
     }
+    // The self-contained page: every figure inlined as SVG, every video embedded, no link into the folder but the
+    // table files.
+    let html = std::fs::read_to_string(report.join("index.html")).unwrap();
+    assert_eq!(html.matches("<figure><svg").count(), 3, "three figures inlined");
+    assert_eq!(html.matches("src=\"data:image/gif;base64,").count(), 4, "four videos embedded");
+    assert!(!html.contains(".png\"") && !html.contains("videos/"), "no reference to files beside the page");
     std::fs::remove_dir_all(&store).unwrap();
 }
