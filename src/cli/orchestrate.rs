@@ -5,6 +5,7 @@ use anyhow::{Context, Result, bail};
 use oneshot_lab::config::{Experiment, Grid, overrides};
 use oneshot_lab::pipeline::events::{RunEvent, RunEvents};
 use oneshot_lab::pipeline::graph::{Plan, short};
+use oneshot_lab::pipeline::integrity;
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::scheduler::{RunOptions, RunReport, run as run_plan};
 use oneshot_lab::pipeline::selection::{Pattern, display_name};
@@ -242,8 +243,13 @@ pub fn plan(a: PlanArgs) -> Result<()> {
     let (experiment, plan) = load_plan(&a.file, &a.store.resolution())?;
     let mut store = Store::open(&a.store.dir.store)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
-    let stage = |kind: &'static str, key: &str, step: Option<u64>| -> Result<PlannedStage> {
-        Ok(PlannedStage { kind, key: key.to_string(), state: state_word(&store.state(key)?), step })
+    // A stage is cached only with an intact artifact (a damaged one is marked failed, as `run` would).
+    let mut stage = |kind: &'static str, key: &str, step: Option<u64>| -> Result<PlannedStage> {
+        let state = match integrity::cached(&mut store, key)? {
+            Some(Ok(_)) => "cached",
+            _ => state_word(&store.state(key)?),
+        };
+        Ok(PlannedStage { kind, key: key.to_string(), state, step })
     };
     let mut cells = Vec::new();
     for c in &plan.cells {
@@ -266,7 +272,7 @@ pub fn plan(a: PlanArgs) -> Result<()> {
     }
     let (mut estimate, mut unknown, mut todo) = (0.0, 0, 0);
     for s in plan.stages.values() {
-        if store.state(&s.key)? == StageState::Done {
+        if matches!(integrity::cached(&mut store, &s.key)?, Some(Ok(_))) {
             continue;
         }
         todo += 1;

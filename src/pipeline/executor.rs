@@ -55,6 +55,7 @@ impl Executor for Local {
         let ctx = RunContext { workers: self.workers, device, progress: self.progress };
         let outputs = stage.job.run(&Upstream(upstream), &staging, &ctx)?;
         let out = artifact_dir(&self.root, kind, &stage.key);
+        super::integrity::seal(&staging)?;
         crate::fsio::publish_dir(&staging, &out)?;
         Ok((out, outputs))
     }

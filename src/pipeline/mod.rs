@@ -4,6 +4,7 @@ pub mod events;
 pub mod executor;
 pub mod gc;
 pub mod graph;
+pub mod integrity;
 pub mod key;
 pub mod scheduler;
 pub mod selection;

@@ -2,11 +2,11 @@
 //! that concurrent runs never execute a stage twice; a failure stops only the stages below it.
 use super::events::{RunEvent, RunEvents};
 use super::executor::{Executor, Local};
-use super::graph::Plan;
+use super::graph::{Plan, short};
 use super::selection::{Labels, Pattern, display_name, forced, selected};
 use super::slurm::{Slurm, SlurmOptions, detached};
 use super::stages::StageOutputs;
-use super::store::{Claim, StageState, Store};
+use super::store::{Claim, Store};
 use anyhow::Result;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -89,13 +89,18 @@ struct Scheduler<'a> {
 
 impl Scheduler<'_> {
     /// Whether stage `key` needs to run (not cached, or forced).
-    fn initial_status(&self, key: &str) -> Result<Status> {
-        if self.forced.contains(key) || self.store.state(key)? != StageState::Done {
+    fn initial_status(&mut self, key: &str) -> Result<Status> {
+        if self.forced.contains(key) {
             return Ok(Status::Pending);
         }
-        Ok(match self.store.artifact(key)? {
-            Some(a) if a.exists() => Status::Done(a),
-            _ => Status::Pending,
+        Ok(match super::integrity::cached(&mut self.store, key)? {
+            Some(Ok(artifact)) => Status::Done(artifact),
+            Some(Err(reason)) => {
+                let kind = self.plan.stages[key].kind().name();
+                self.events.report(RunEvent::Warning(format!("{kind} stage {}: {reason}", short(key))));
+                Status::Pending
+            }
+            None => Status::Pending,
         })
     }
 

@@ -400,3 +400,58 @@ fn malformed_experiment_files_name_file_line_and_key() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("no profile `gpu`"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_byte_changed_in_any_artifact_is_caught_before_use_and_the_stage_recomputed() {
+    let dir = scratch("pipeline-integrity");
+    let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
+    std::fs::write(&file, pretrained_experiment("[0]", 4)).unwrap();
+    assert_eq!(executed(&run(&file, &store)), 8);
+    let conn = db(&store);
+    // One stage of each kind, and a file of its artifact that a later stage or the report reads.
+    for (kind, name) in [
+        ("collect", "manifest.json"),
+        ("pretrain", "trunk.safetensors"),
+        ("train", "model.safetensors"),
+        ("eval", "summary.json"),
+    ] {
+        let (key, artifact): (String, String) = conn
+            .query_row(
+                "SELECT key, artifact FROM stages WHERE kind = ?1 AND status = 'done' ORDER BY key LIMIT 1",
+                [kind],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .unwrap();
+        let target = if kind == "collect" {
+            // A trajectory file, changed in place at the same size (only a truncation was caught before).
+            let dir = Path::new(&artifact).join("trajectories");
+            std::fs::read_dir(&dir).unwrap().next().unwrap().unwrap().path()
+        } else {
+            Path::new(&artifact).join(name)
+        };
+        assert!(target.is_file(), "{}", target.display());
+        let mut bytes = std::fs::read(&target).unwrap();
+        let at = bytes.len() / 2;
+        bytes[at] ^= 0x55;
+        std::fs::write(&target, &bytes).unwrap();
+
+        // plan and a dry run agree that it is no longer cached, and say why.
+        let plan = oneshot().args(["plan", file.to_str().unwrap(), "--store", store.to_str().unwrap()]).output();
+        let plan = String::from_utf8_lossy(&plan.unwrap().stdout).into_owned();
+        assert!(plan.contains(&format!("failed {}", &key[..12])), "{kind}: {plan}");
+        let out = run(&file, &store);
+        let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        assert_eq!(executed(&out), 1, "{kind}: only the damaged stage runs again (its result is the same):\n{text}");
+        let status: String = conn.query_row("SELECT status FROM stages WHERE key = ?1", [&key], |r| r.get(0)).unwrap();
+        assert_eq!(status, "done", "{kind}");
+        let error: String = conn
+            .query_row(
+                "SELECT error FROM attempts WHERE stage_key = ?1 AND status = 'failed' ORDER BY id DESC LIMIT 1",
+                [&key],
+                |r| r.get(0),
+            )
+            .unwrap();
+        assert!(error.contains("artifact damaged") && error.contains("differs"), "{kind}: {error}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -349,6 +349,20 @@ impl Store {
             .map(PathBuf::from))
     }
 
+    /// Marks done stage `key` failed because its artifact is missing or damaged (`reason`), recorded as an attempt
+    /// of this process, so the next run recomputes it.
+    pub fn mark_damaged(&mut self, key: &str, reason: &str) -> Result<()> {
+        let tx = self.conn.transaction()?;
+        tx.execute("UPDATE stages SET status = 'failed', finished_at = ?2 WHERE key = ?1", params![key, now()])?;
+        tx.execute(
+            "INSERT INTO attempts (stage_key, status, host, pid, started_at, finished_at, error)
+             VALUES (?1, 'failed', ?2, ?3, ?4, ?4, ?5)",
+            params![key, host(), std::process::id() as i64, now(), reason],
+        )?;
+        tx.commit()?;
+        Ok(())
+    }
+
     /// Marks the stage whose artifact folder was `artifact` as to be re-run (its folder was removed).
     pub fn forget_artifact(&mut self, artifact: &str) -> Result<()> {
         self.conn.execute("UPDATE stages SET status = 'planned', artifact = NULL WHERE artifact = ?1", [artifact])?;
