@@ -95,6 +95,35 @@ pub(super) fn located(e: toml::de::Error, file: &str, what: &str, text: &str) ->
     anyhow::anyhow!("{file}{line}: in {what}: {msg}")
 }
 
+/// An error typing the file's top level (an unknown table, a wrong type in `[grid]`): located by reading this
+/// file's own text, which keeps positions, at the line and dotted key it is about; else as [`located`] can.
+pub(super) fn shape_error(e: toml::de::Error, file: &str, what: &str, text: &str) -> anyhow::Error {
+    let Some(span) = toml::from_str::<FileShape>(text).err().and_then(|own| own.span()) else {
+        return located(e, file, what, text);
+    };
+    let line = text.get(..span.start).map_or(1, |before| before.matches('\n').count() + 1);
+    let key = key_at(text, line).map(|k| format!(", key `{k}`")).unwrap_or_default();
+    anyhow::anyhow!("{file} (line {line}{key}): in {what}: {}", e.message())
+}
+
+/// The dotted key written on 1-based `line` of `text`: a table header's name, or `table.key` of an assignment.
+fn key_at(text: &str, line: usize) -> Option<String> {
+    let lines: Vec<&str> = text.lines().collect();
+    let here = lines.get(line.checked_sub(1)?)?.trim();
+    let header = |l: &str| {
+        l.strip_prefix('[').map(|h| h.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string())
+    };
+    if let Some(h) = header(here) {
+        return Some(h);
+    }
+    let key = here.split('=').next()?.trim().trim_matches('"').to_string();
+    let table = lines[..line - 1].iter().rev().find_map(|l| header(l.trim()));
+    Some(match table {
+        Some(t) if !t.is_empty() => format!("{t}.{key}"),
+        _ => key,
+    })
+}
+
 /// The first `section.key` of `table` that does not deserialise on its own (a merged table has no positions
 /// left: this finds which key a type error is about).
 pub(super) fn offending_key(table: &toml::Table) -> Option<String> {

@@ -9,7 +9,7 @@ use crate::sim::env::WorldConfig;
 use crate::train::config::TrainConfig;
 use crate::train::pretrain::PretrainConfig;
 use anyhow::{Context, Result, bail};
-use file::{FileShape, line_of, located, merge, read_table};
+use file::{FileShape, line_of, located, merge, read_table, shape_error};
 use rules::{reject_train_seed, resolve, validate_grid};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -169,6 +169,14 @@ impl Experiment {
             check_alone(o, "--set")?;
             o.apply(&mut table)?;
         }
+        if let Some(key) = non_finite(&table, "") {
+            bail!(
+                "{file}{}: {key} is not a finite number",
+                line_of(&text, key.rsplit('.').next().unwrap_or(""))
+                    .map(|l| format!(" (line {l})"))
+                    .unwrap_or_default()
+            );
+        }
         let mut what = match profile {
             Some(p) => format!("the file with profile `{p}`"),
             None => "the file".to_string(),
@@ -176,7 +184,7 @@ impl Experiment {
         if !resolution.overrides.is_empty() {
             what = format!("{what} and {}", overrides::spelled(&resolution.overrides));
         }
-        let shape: FileShape = toml::Value::Table(table).try_into().map_err(|e| located(e, &file, &what, &text))?;
+        let shape: FileShape = toml::Value::Table(table).try_into().map_err(|e| shape_error(e, &file, &what, &text))?;
         let name = shape
             .name
             .clone()
@@ -237,6 +245,23 @@ impl Experiment {
         }
         Ok(Experiment { name, description, grid, base, cells, resolution: resolution.clone() })
     }
+}
+
+/// The dotted key of the first float in `table` that is NaN or infinite (no setting takes one).
+fn non_finite(table: &toml::Table, prefix: &str) -> Option<String> {
+    table.iter().find_map(|(k, v)| {
+        let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+        match v {
+            toml::Value::Float(f) if !f.is_finite() => Some(key),
+            toml::Value::Table(t) => non_finite(t, &key),
+            toml::Value::Array(items) => items.iter().find_map(|i| match i {
+                toml::Value::Float(f) if !f.is_finite() => Some(key.clone()),
+                toml::Value::Table(t) => non_finite(t, &key),
+                _ => None,
+            }),
+            _ => None,
+        }
+    })
 }
 
 /// One point of a grid's sweep: the keys it sets and the suffix it adds to a variant's name.

@@ -67,6 +67,9 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
     Ok(config)
 }
 
+/// The largest dataset size accepted: 100,000 trajectories per robot, about 60 times the paper's largest.
+const MAX_SIZE: usize = 100_000;
+
 pub(super) fn validate_grid(
     grid: &Grid,
     variants: &BTreeMap<String, toml::Table>,
@@ -87,6 +90,13 @@ pub(super) fn validate_grid(
     for &n in &grid.sizes {
         if n == 0 {
             bail!("{file}{}: grid.sizes contains 0: sizes must be positive", at("sizes"));
+        }
+        if n > MAX_SIZE {
+            bail!(
+                "{file}{}: grid.sizes contains {n}: at most {MAX_SIZE} trajectories per robot (the paper's largest is \
+                 1600; a collection of {n} would not fit a disk)",
+                at("sizes")
+            );
         }
     }
     if grid.sizes.is_empty() && grid.references.is_empty() {

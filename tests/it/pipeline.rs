@@ -378,6 +378,12 @@ fn malformed_experiment_files_name_file_line_and_key() {
         ),
         ("[world]\nagent_yaw = \"object_yaw\"\n", &["bad.toml", "eval.fixed_rotation", "agent_yaw"][..]),
         ("[world]\nagent_yaw = \"sideways\"\n", &["bad.toml", "sideways"][..]),
+        ("[experiment]\nx = 1\n", &["bad.toml", "line 1", "key `experiment`"][..]),
+        ("[grid]\nseeds = [0.5]\n", &["bad.toml", "line 2", "key `grid.seeds`"][..]),
+        ("[grid]\nreferences = [\"oracle\"]\n", &["bad.toml", "line 2", "key `grid.references`", "oracle"][..]),
+        ("[collect]\naction_noise = nan\n", &["bad.toml", "collect.action_noise", "not a finite number"][..]),
+        ("[variants.x]\nmodel.dropout = inf\n", &["bad.toml", "variants.x.model.dropout", "finite"][..]),
+        ("[grid]\nsizes = [2000000000000]\n", &["bad.toml", "grid.sizes", "2000000000000", "100000"][..]),
     ];
     for (text, needles) in cases {
         let path = dir.join("bad.toml");
