@@ -43,7 +43,7 @@ pub fn folder_size(path: &Path) -> u64 {
 pub fn remove_artifacts(store: &mut Store, folders: &[PathBuf]) -> Result<()> {
     for path in folders {
         std::fs::remove_dir_all(path).with_context(|| format!("removing {}", path.display()))?;
-        store.forget_artifact(&path.to_string_lossy())?;
+        store.forget_artifact(path)?;
     }
     Ok(())
 }

@@ -256,7 +256,7 @@ fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
     assert_eq!(attempts[1].0, "done");
     let artifact: String =
         conn.query_row("SELECT artifact FROM stages WHERE key = ?1", [&train_key], |r| r.get(0)).unwrap();
-    let info = std::fs::read_to_string(Path::new(&artifact).join("model.json")).unwrap();
+    let info = std::fs::read_to_string(store.join(&artifact).join("model.json")).unwrap();
     let summary: serde_json::Value = serde_json::from_str(&info).unwrap();
     assert!(summary["resumed_from"].as_u64().unwrap() >= 20, "training resumed from its checkpoint: {summary}");
     assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'running'"), 0);
@@ -307,8 +307,8 @@ fn a_pretrain_section_trains_the_trunk_once_per_seed_and_training_starts_from_it
     let read = |p: PathBuf| -> std::collections::HashMap<String, tch::Tensor> {
         tch::Tensor::read_safetensors(&p).unwrap().into_iter().collect()
     };
-    let trunk = read(Path::new(&artifact).join("trunk.safetensors"));
-    let policy = read(Path::new(&train_artifact).join("model.safetensors"));
+    let trunk = read(store.join(&artifact).join("trunk.safetensors"));
+    let policy = read(store.join(&train_artifact).join("model.safetensors"));
     let learned: Vec<&String> = trunk.keys().filter(|n| n.ends_with("weight") || n.ends_with("bias")).collect();
     assert!(learned.len() > 10 && learned.iter().any(|n| n.as_str() == "conv1.weight"), "{learned:?}");
     for name in learned {
@@ -428,6 +428,7 @@ fn a_byte_changed_in_any_artifact_is_caught_before_use_and_the_stage_recomputed(
                 |r| Ok((r.get(0)?, r.get(1)?)),
             )
             .unwrap();
+        let artifact = store.join(artifact);
         let target = if kind == "collect" {
             // A trajectory file, changed in place at the same size (only a truncation was caught before).
             let dir = Path::new(&artifact).join("trajectories");
@@ -459,5 +460,19 @@ fn a_byte_changed_in_any_artifact_is_caught_before_use_and_the_stage_recomputed(
             .unwrap();
         assert!(error.contains("artifact damaged") && error.contains("differs"), "{kind}: {error}");
     }
+
+    // Artifact paths are recorded relative to the store, so a moved store needs nothing of its old place; paths
+    // recorded the old way (relative to where `run` ran) are read as the store's own.
+    let recorded: String =
+        conn.query_row("SELECT artifact FROM stages WHERE kind = 'train' LIMIT 1", [], |r| r.get(0)).unwrap();
+    assert!(recorded.starts_with("artifacts/train/"), "{recorded}");
+    conn.execute("UPDATE stages SET artifact = 'elsewhere/runs/' || artifact WHERE kind = 'eval'", []).unwrap();
+    drop(conn);
+    let moved = dir.join("moved");
+    std::fs::rename(&store, &moved).unwrap();
+    assert_eq!(executed(&run(&file, &moved)), 0, "the moved store is fully cached");
+    let recorded: String =
+        db(&moved).query_row("SELECT artifact FROM stages WHERE kind = 'eval' LIMIT 1", [], |r| r.get(0)).unwrap();
+    assert!(recorded.starts_with("artifacts/eval/"), "{recorded}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

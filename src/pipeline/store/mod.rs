@@ -60,6 +60,26 @@ CREATE TABLE IF NOT EXISTS loss_curves (
 CREATE INDEX IF NOT EXISTS attempts_by_stage ON attempts(stage_key);
 ";
 
+/// Stores written before artifact paths were relative recorded them as the path `run` was given
+/// (`runs/artifacts/train/KEY`, relative to the directory it ran in): keeps their last three parts,
+/// `artifacts/KIND/KEY`, which is where every artifact lies in its store folder.
+fn relative_artifact_paths(conn: &Connection) -> Result<()> {
+    let mut stmt = conn
+        .prepare("SELECT key, artifact FROM stages WHERE artifact IS NOT NULL AND artifact NOT LIKE 'artifacts/%'")?;
+    let old: Vec<(String, String)> =
+        stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?.collect::<rusqlite::Result<_>>()?;
+    for (key, artifact) in old {
+        let parts: Vec<&str> = Path::new(&artifact).iter().filter_map(|p| p.to_str()).collect();
+        if let [.., "artifacts", kind, short] = parts.as_slice() {
+            conn.execute(
+                "UPDATE stages SET artifact = ?2 WHERE key = ?1",
+                params![key, format!("artifacts/{kind}/{short}")],
+            )?;
+        }
+    }
+    Ok(())
+}
+
 /// Seconds since the Unix epoch.
 pub fn now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
@@ -110,6 +130,9 @@ pub struct Holder {
 /// An open results store.
 pub struct Store {
     conn: Connection,
+    /// The store folder: artifact paths are recorded relative to it, so a copied or moved store still finds its
+    /// own artifacts.
+    root: PathBuf,
 }
 
 impl Store {
@@ -135,6 +158,7 @@ impl Store {
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "NORMAL")?;
         conn.execute_batch(SCHEMA).with_context(|| format!("creating the schema in {}", path.display()))?;
+        relative_artifact_paths(&conn).with_context(|| format!("updating artifact paths in {}", path.display()))?;
         // Stores made before `--set` existed lack the experiments' overrides.
         let has_overrides =
             conn.prepare("SELECT 1 FROM pragma_table_info('experiments') WHERE name = 'overrides'")?.exists([])?;
@@ -142,7 +166,7 @@ impl Store {
             conn.execute_batch("ALTER TABLE experiments ADD COLUMN overrides TEXT NOT NULL DEFAULT ''")
                 .with_context(|| format!("adding the experiments' overrides to {}", path.display()))?;
         }
-        Ok(Store { conn })
+        Ok(Store { conn, root: root.to_path_buf() })
     }
 
     /// Records the stages (inputs and upstream) of a plan, keeping what is already known.
@@ -294,6 +318,7 @@ impl Store {
 
     /// Marks a claimed stage done with its artifact folder and results, in one transaction.
     pub fn complete(&mut self, key: &str, attempt: i64, artifact: &Path, results: &StageOutputs) -> Result<()> {
+        let recorded = self.relative(artifact);
         let tx = self.conn.transaction()?;
         let started: f64 = tx.query_row("SELECT started_at FROM attempts WHERE id = ?1", [attempt], |r| r.get(0))?;
         let t = now();
@@ -330,7 +355,7 @@ impl Store {
         }
         tx.execute(
             "UPDATE stages SET status = 'done', artifact = ?2, finished_at = ?3, seconds = ?4 WHERE key = ?1",
-            params![key, artifact.to_string_lossy(), t, t - started],
+            params![key, recorded.to_string_lossy(), t, t - started],
         )?;
         tx.execute("UPDATE attempts SET status = 'done', finished_at = ?2 WHERE id = ?1", params![attempt, t])?;
         tx.commit()?;
@@ -346,7 +371,12 @@ impl Store {
             })
             .optional()?
             .flatten()
-            .map(PathBuf::from))
+            .map(|a| self.root.join(a)))
+    }
+
+    /// `artifact` relative to the store folder (as recorded), where it lies inside it.
+    fn relative(&self, artifact: &Path) -> PathBuf {
+        artifact.strip_prefix(&self.root).map_or_else(|_| artifact.to_path_buf(), Path::to_path_buf)
     }
 
     /// Marks done stage `key` failed because its artifact is missing or damaged (`reason`), recorded as an attempt
@@ -364,8 +394,9 @@ impl Store {
     }
 
     /// Marks the stage whose artifact folder was `artifact` as to be re-run (its folder was removed).
-    pub fn forget_artifact(&mut self, artifact: &str) -> Result<()> {
-        self.conn.execute("UPDATE stages SET status = 'planned', artifact = NULL WHERE artifact = ?1", [artifact])?;
+    pub fn forget_artifact(&mut self, artifact: &Path) -> Result<()> {
+        let recorded = self.relative(artifact).to_string_lossy().into_owned();
+        self.conn.execute("UPDATE stages SET status = 'planned', artifact = NULL WHERE artifact = ?1", [recorded])?;
         Ok(())
     }
 
