@@ -122,3 +122,26 @@ fn the_scripted_expert_places_the_object_at_the_positions_it_is_given() {
     }
     assert!(placed >= 5, "placed {placed} of 6 from the given positions");
 }
+
+#[test]
+fn renderers_opened_and_closed_on_several_threads_at_once_render_the_same_frames() {
+    // Evaluation workers, a training beside them and concurrent tests all open EGL renderers from their own
+    // threads; a Mesa crash (swrast_dri.so) was seen there. Each thread opens, renders and drops many in turn.
+    let world = small_world();
+    let reference = {
+        let mut env = Env::new(Robot::Panda, &world, true).unwrap();
+        env.reset(&Instance::sample(Task::from_id(3).unwrap(), 7));
+        env.render().unwrap()
+    };
+    std::thread::scope(|s| {
+        for _ in 0..4 {
+            s.spawn(|| {
+                for _ in 0..12 {
+                    let mut env = Env::new(Robot::Panda, &world, true).unwrap();
+                    env.reset(&Instance::sample(Task::from_id(3).unwrap(), 7));
+                    assert!(env.render().unwrap() == reference, "a frame differs from the one rendered alone");
+                }
+            });
+        }
+    });
+}
