@@ -1,7 +1,7 @@
 //! The `oneshot-lab` command line: parses the arguments and hands each command to its handler in `cli`.
 mod cli;
 
-use clap::Parser;
+use clap::{CommandFactory, Parser};
 use cli::args::{BenchCommand, Cli, Command};
 
 fn main() {
@@ -28,8 +28,8 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::RunStage(a) => cli::orchestrate::run_stage(a),
         Command::Plan(a) => cli::orchestrate::plan(a),
         Command::Config(a) => cli::config::config(a),
-        Command::Reference(a) => cli::reference::reference(a),
-        Command::Completions(a) => cli::reference::completions(a),
+        Command::Reference(a) => cli::reference::reference(a, Cli::command()),
+        Command::Completions(a) => cli::reference::completions(a, Cli::command()),
         Command::Why(a) => cli::inspect::why(a),
         Command::Diff(a) => cli::diff::diff(a),
         Command::Status(a) => cli::inspect::status(a),

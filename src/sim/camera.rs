@@ -101,8 +101,25 @@ impl Intrinsics {
 
 /// Offscreen renderer for the scene's fixed camera.
 pub struct Camera {
-    renderer: MjRenderer,
+    /// Always `Some` but while it is dropped (under [`GL_LOCK`]).
+    renderer: Option<MjRenderer>,
     size: ImageSize,
+}
+
+/// Serialises every OpenGL call of the process (opening, rendering, closing): an evaluation whose workers
+/// rendered on their own threads died twice in Mesa's software driver (a general protection fault in
+/// `swrast_dri.so`, 2026-12-03), with a training or another process beside it.
+static GL_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn gl_lock() -> std::sync::MutexGuard<'static, ()> {
+    GL_LOCK.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+impl Drop for Camera {
+    fn drop(&mut self) {
+        let _gl = gl_lock();
+        drop(self.renderer.take());
+    }
 }
 
 impl Camera {
@@ -119,6 +136,7 @@ impl Camera {
             },
             ..MjvOption::default()
         };
+        let _gl = gl_lock();
         let renderer = MjRenderer::builder()
             .width(size.width as u32)
             .height(size.height as u32)
@@ -126,14 +144,16 @@ impl Camera {
             .opts(opts)
             .build(model)
             .map_err(|e| anyhow!("opening a headless EGL renderer: {e}"))?;
-        Ok(Camera { renderer, size })
+        Ok(Camera { renderer: Some(renderer), size })
     }
 
     /// Renders the current state: `height * width * 3` bytes, row-major from the top row of the upright scene.
     pub fn render(&mut self, data: &mut MjData<Arc<MjModel>>) -> Result<Vec<u8>> {
-        self.renderer.sync_data(data).map_err(|e| anyhow!("render sync: {e}"))?;
-        self.renderer.render().map_err(|e| anyhow!("render: {e}"))?;
-        let rgb = self.renderer.rgb_flat().ok_or_else(|| anyhow!("renderer produced no RGB buffer"))?;
+        let _gl = gl_lock();
+        let renderer = self.renderer.as_mut().expect("a camera holds its renderer until it is dropped");
+        renderer.sync_data(data).map_err(|e| anyhow!("render sync: {e}"))?;
+        renderer.render().map_err(|e| anyhow!("render: {e}"))?;
+        let rgb = renderer.rgb_flat().ok_or_else(|| anyhow!("renderer produced no RGB buffer"))?;
         if rgb.len() != self.size.rgb_len() {
             bail!("renderer returned {} bytes, expected {}", rgb.len(), self.size.rgb_len());
         }
