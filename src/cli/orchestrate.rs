@@ -276,7 +276,13 @@ pub fn plan(a: PlanArgs) -> Result<()> {
             continue;
         }
         todo += 1;
-        match store.mean_seconds(s.kind().name())? {
+        // A training's time scales with its steps: past trainings give seconds per step.
+        let steps = s.inputs.get("train").and_then(|t| t.get("steps")).and_then(|v| v.as_f64());
+        let seconds = match (s.kind(), steps) {
+            (stages::Kind::Train, Some(steps)) => store.mean_seconds_per_train_step()?.map(|t| t * steps),
+            _ => store.mean_seconds(s.kind().name())?,
+        };
+        match seconds {
             Some(t) => estimate += t,
             None => unknown += 1,
         }

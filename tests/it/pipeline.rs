@@ -152,6 +152,14 @@ fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
         String::from_utf8_lossy(&out.stdout).into_owned()
     };
     assert!(cli(&["plan", file.to_str().unwrap()]).contains("0 stages to run"));
+    // plan's estimate of a training scales with its steps (seconds per step of the trainings done).
+    let estimate = |steps: u32| -> f64 {
+        let text = cli(&["plan", file.to_str().unwrap(), "--set", &format!("train.steps={steps}")]);
+        let after = text.split("about ").nth(1).unwrap_or_else(|| panic!("no estimate in {text}"));
+        after.split(' ').next().unwrap().parse().unwrap()
+    };
+    let (short, long) = (estimate(40), estimate(4000));
+    assert!(long > 5.0 * short, "4,000 steps estimated at {long} s, 40 at {short} s");
     assert!(cli(&["status"]).contains("done"));
     let cells: serde_json::Value = serde_json::from_str(&cli(&["query", "cells", "--format", "json"])).unwrap();
     assert_eq!(cells.as_array().unwrap().len(), 5, "2 variants x 2 seeds + the random reference");

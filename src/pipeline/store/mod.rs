@@ -400,6 +400,16 @@ impl Store {
         Ok(())
     }
 
+    /// Mean seconds per step of finished trainings, for estimates.
+    pub fn mean_seconds_per_train_step(&self) -> Result<Option<f64>> {
+        Ok(self.conn.query_row(
+            "SELECT AVG(seconds / json_extract(inputs, '$.train.steps')) FROM stages
+             WHERE kind = 'train' AND status = 'done' AND json_extract(inputs, '$.train.steps') > 0",
+            [],
+            |r| r.get(0),
+        )?)
+    }
+
     /// Mean seconds of finished stages of `kind`, for estimates.
     pub fn mean_seconds(&self, kind: &str) -> Result<Option<f64>> {
         Ok(self
