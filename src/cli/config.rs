@@ -98,8 +98,8 @@ fn annotated(table: &toml::Table, defaults: &toml::Table, prefix: &str) -> Strin
     out
 }
 
-/// A value on one line (tables inline).
-fn inline(v: &toml::Value) -> String {
+/// A value on one line as TOML writes it (tables inline); also the reference pages' defaults.
+pub(super) fn inline(v: &toml::Value) -> String {
     match v {
         toml::Value::Table(t) => {
             let parts: Vec<String> = t.iter().map(|(k, v)| format!("{k} = {}", inline(v))).collect();

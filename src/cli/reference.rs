@@ -1,6 +1,7 @@
 //! `reference config|cli`: the reference pages under `docs/reference/`, generated from the configuration structs
 //! (their JSON schema and doc comments) and from the command tree, so they cannot drift from the code; a test
 //! compares the files with what this prints.
+use super::config::inline;
 use anyhow::{Result, bail};
 use oneshot_lab::config::{Cell, CellConfig, Experiment, Grid, Resolution};
 use oneshot_lab::pipeline::stages::{Kind, plan};
@@ -344,16 +345,6 @@ fn shown(v: &Value) -> String {
             Ok(t) => format!("`{}`", inline(&t)),
             Err(_) => format!("`{v}`"),
         },
-    }
-}
-
-fn inline(v: &toml::Value) -> String {
-    match v {
-        toml::Value::Table(t) => {
-            let parts: Vec<String> = t.iter().map(|(k, v)| format!("{k} = {}", inline(v))).collect();
-            format!("{{ {} }}", parts.join(", "))
-        }
-        v => v.to_string(),
     }
 }
 

@@ -4,7 +4,7 @@ use oneshot_lab::config::CellConfig;
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig, TaskPass};
-use oneshot_lab::model::policy::Policy;
+use oneshot_lab::model::policy::{Losses, Policy};
 use oneshot_lab::model::resnet::ResNet18;
 use oneshot_lab::train::adam::Adam;
 use oneshot_lab::train::config::{LossWeights, TrainConfig, check_heads};
@@ -17,6 +17,28 @@ fn tiny() -> ModelConfig {
 
 fn images(b: i64, t: i64) -> Tensor {
     Tensor::randn([b, t, 3, 32, 40], (Kind::Float, Device::Cpu))
+}
+
+/// A batch of two samples with these frames and tasks, and random actions, points and poses.
+fn batch(context: Tensor, agent: Tensor, tasks: [i64; 2]) -> DeviceBatch {
+    DeviceBatch {
+        context,
+        agent,
+        actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
+        poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
+        tasks: Tensor::from_slice(&tasks),
+    }
+}
+
+/// One loss of `batch` before and after 100 Adam steps on it alone.
+fn fitted(vs: &nn::VarStore, policy: &Policy, batch: &DeviceBatch, loss: fn(Losses) -> Tensor) -> (f64, f64) {
+    let mut opt = Adam::new(vs, 1e-2);
+    let first = loss(policy.losses(batch, true)).double_value(&[]);
+    for _ in 0..100 {
+        opt.backward_step(&loss(policy.losses(batch, true)));
+    }
+    (first, loss(policy.losses(batch, true)).double_value(&[]))
 }
 
 #[test]
@@ -73,14 +95,7 @@ fn the_separate_task_pass_normalises_over_its_own_frames_only() {
 fn a_tiny_model_overfits_one_batch() {
     let _rng = seeded(1);
     let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();
-    let batch = DeviceBatch {
-        context: images(2, 4),
-        agent: images(2, 7),
-        actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
-        points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
-        poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
-        tasks: Tensor::from_slice(&[3i64, 12]),
-    };
+    let batch = batch(images(2, 4), images(2, 7), [3, 12]);
     // A learning rate at which the loss falls steadily: at 1e-2 it fell, then climbed back on one CPU and not on
     // another (2.4 from 6.3 after 2,400 steps), so the test measured rounding rather than learning.
     let mut opt = Adam::new(&vs, 5e-3);
@@ -113,20 +128,7 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
     assert_eq!(a.size(), [2, 7, 6]);
     assert!((a.narrow(1, 0, 4) - b.narrow(1, 0, 4)).abs().max().double_value(&[]) < 1e-5);
 
-    let batch = DeviceBatch {
-        context,
-        agent,
-        actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
-        points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
-        poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
-        tasks: Tensor::from_slice(&[3i64, 12]),
-    };
-    let mut opt = Adam::new(&vs, 1e-2);
-    let first = policy.losses(&batch, true).pose.double_value(&[]);
-    for _ in 0..100 {
-        opt.backward_step(&policy.losses(&batch, true).pose);
-    }
-    let last = policy.losses(&batch, true).pose.double_value(&[]);
+    let (first, last) = fitted(&vs, &policy, &batch(context, agent, [3, 12]), |l| l.pose);
     assert!(last < 0.1 * first, "pose loss {first} -> {last}");
 
     let weighted = TrainConfig { loss: LossWeights { pose: 300.0, ..LossWeights::default() }, ..Default::default() };
@@ -162,21 +164,8 @@ fn the_optional_task_head_reads_the_context_and_fits_its_labels() {
     let c = policy.forward_t(&other, &agent, false).task_logits.unwrap();
     assert!((&a - &c).abs().max().double_value(&[]) > 1e-4, "the context moves the task logits");
 
-    let batch = DeviceBatch {
-        context,
-        agent,
-        actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
-        points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
-        poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
-        tasks: Tensor::from_slice(&[5i64, 9]),
-    };
-    let mut opt = Adam::new(&vs, 1e-2);
-    let first = policy.losses(&batch, true).task.double_value(&[]);
+    let (first, last) = fitted(&vs, &policy, &batch(context, agent, [5, 9]), |l| l.task);
     assert!((first - 16f64.ln()).abs() < 1.0, "starts near chance, ln 16: {first}");
-    for _ in 0..100 {
-        opt.backward_step(&policy.losses(&batch, true).task);
-    }
-    let last = policy.losses(&batch, true).task.double_value(&[]);
     assert!(last < 0.1 * first, "task loss {first} -> {last}");
 
     let weighted = TrainConfig { loss: LossWeights { task: 2.0, ..LossWeights::default() }, ..Default::default() };
