@@ -1,6 +1,6 @@
 //! `diff A B`: two stages, or two cells, side by side: the inputs that differ and the metrics each recorded.
 use super::inspect::{differences, one_stage};
-use super::options::{OutputFormat, StoreDir};
+use super::options::{OutputFormat, ReadStoreDir};
 use anyhow::{Result, bail};
 use oneshot_lab::pipeline::graph::short;
 use oneshot_lab::pipeline::store::Store;
@@ -16,14 +16,14 @@ pub struct DiffArgs {
     /// The other stage or cell.
     pub b: String,
     #[command(flatten)]
-    pub store: StoreDir,
+    pub store: ReadStoreDir,
     /// Text for people or JSON for scripts.
     #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
     pub format: OutputFormat,
 }
 
 /// The stages one side of a diff names: a cell's train and eval stages, or one stage.
-fn stages_of(store: &Store, dir: &StoreDir, what: &str) -> Result<Vec<StageRecord>> {
+fn stages_of(store: &Store, dir: &ReadStoreDir, what: &str) -> Result<Vec<StageRecord>> {
     let (experiment, cell) = match what.split_once('/') {
         Some((e, c)) => (Some(e), c),
         None => (None, what),
@@ -45,7 +45,7 @@ fn stages_of(store: &Store, dir: &StoreDir, what: &str) -> Result<Vec<StageRecor
 
 /// `diff`: pairs the stages of A and B by kind and prints, for each pair, the inputs that differ and the metrics.
 pub fn diff(a: DiffArgs) -> Result<()> {
-    let store = Store::open_existing(&a.store.store)?;
+    let store = a.store.open()?;
     let (left, right) = (stages_of(&store, &a.store, &a.a)?, stages_of(&store, &a.store, &a.b)?);
     let mut pairs = Vec::new();
     for l in &left {

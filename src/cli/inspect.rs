@@ -1,5 +1,5 @@
 //! `why`, `status`, `query`, `gc` and `report`: looking into (and tidying) the results store.
-use super::options::{OutputFormat, StoreArgs, StoreDir};
+use super::options::{OutputFormat, ReadStoreDir, StoreArgs};
 use anyhow::{Result, bail};
 use oneshot_lab::config::Experiment;
 use oneshot_lab::pipeline::executor::staging_dir;
@@ -19,7 +19,7 @@ pub struct WhyArgs {
     /// Stage key or its first characters.
     pub stage: String,
     #[command(flatten)]
-    pub store: StoreDir,
+    pub store: ReadStoreDir,
     /// Text for people or JSON for scripts.
     #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
     pub format: OutputFormat,
@@ -29,7 +29,7 @@ pub struct WhyArgs {
 #[derive(clap::Args)]
 pub struct StatusArgs {
     #[command(flatten)]
-    pub store: StoreDir,
+    pub store: ReadStoreDir,
     /// Text for people or JSON for scripts.
     #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
     pub format: OutputFormat,
@@ -44,7 +44,7 @@ pub struct QueryArgs {
     #[arg(long, value_enum, default_value_t = Format::Table)]
     pub format: Format,
     #[command(flatten)]
-    pub store: StoreDir,
+    pub store: ReadStoreDir,
 }
 
 /// Output formats of `query`.
@@ -80,6 +80,10 @@ pub struct ReportArgs {
     /// Output folder (default: STORE/reports/NAME).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Open the store without writing anything to it (automatic where this process cannot write its folder);
+    /// the report then goes to `--out`, outside the store.
+    #[arg(long)]
+    pub read_only: bool,
 }
 
 /// Flattens JSON into `dotted.path -> value text`.
@@ -127,7 +131,7 @@ pub fn differences(a: &StageRecord, b: &StageRecord) -> Vec<Difference> {
 /// Explains a stage (a key or its start): its state, and which inputs differ from the nearest cached stage of
 /// the same kind.
 pub fn why(a: WhyArgs) -> Result<()> {
-    let store = Store::open_existing(&a.store.store)?;
+    let store = a.store.open()?;
     let stage = one_stage(&store, &a.store, &a.stage)?;
     let done = store.done_stages(&stage.kind)?;
     let nearest =
@@ -164,7 +168,7 @@ pub fn why(a: WhyArgs) -> Result<()> {
 }
 
 /// The one stage whose key starts with `prefix`.
-pub fn one_stage(store: &Store, dir: &StoreDir, prefix: &str) -> Result<StageRecord> {
+pub fn one_stage(store: &Store, dir: &ReadStoreDir, prefix: &str) -> Result<StageRecord> {
     let mut found = store.stages_with_prefix(prefix)?;
     match found.len() {
         1 => Ok(found.remove(0)),
@@ -179,12 +183,17 @@ pub fn one_stage(store: &Store, dir: &StoreDir, prefix: &str) -> Result<StageRec
 /// Prints stage counts by kind and status, running attempts (and whether their process is still alive) and
 /// recent failures.
 pub fn status(a: StatusArgs) -> Result<()> {
-    let mut store = Store::open_existing(&a.store.store)?;
+    let mut store = a.store.open()?;
     let mut warnings = Vec::new();
-    let slurm = detached::catch_up(&mut store, &a.store.store).unwrap_or_else(|e| {
-        warnings.push(format!("Slurm jobs not checked: {e:#}"));
+    let slurm = if store.is_read_only() {
+        warnings.push("Slurm jobs not checked: the store is open read-only".into());
         Default::default()
-    });
+    } else {
+        detached::catch_up(&mut store, &a.store.store).unwrap_or_else(|e| {
+            warnings.push(format!("Slurm jobs not checked: {e:#}"));
+            Default::default()
+        })
+    };
     let this_host = host();
     let running: Vec<_> = store
         .running_attempts()?
@@ -288,7 +297,7 @@ impl std::fmt::Display for TrainingProgress {
     }
 }
 
-fn training_progress(store: &Store, dir: &StoreDir, key: &str, started_at: f64) -> Option<TrainingProgress> {
+fn training_progress(store: &Store, dir: &ReadStoreDir, key: &str, started_at: f64) -> Option<TrainingProgress> {
     let stage = one_stage(store, dir, key).ok()?;
     let steps = stage.inputs.get("train")?.get("steps")?.as_u64()?;
     let curve = staging_dir(&dir.store, key).join(oneshot_lab::train::CURVE_FILE);
@@ -385,8 +394,18 @@ pub fn gc(a: GcArgs) -> Result<()> {
 /// Rebuilds an experiment's tables and figures from the store alone.
 pub fn report(a: ReportArgs) -> Result<()> {
     let experiment = Experiment::load(&a.file, &a.store.resolution())?;
+    let store = Store::open_for_reading(&a.store.dir.store, a.read_only)?;
+    let in_store = |out: &PathBuf| {
+        let absolute = |p: &std::path::Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        absolute(out).starts_with(absolute(&a.store.dir.store))
+    };
+    if store.is_read_only() && a.out.as_ref().is_none_or(in_store) {
+        bail!(
+            "the store {} is open read-only, so its report cannot go in it: pass --out FOLDER outside it",
+            a.store.dir.store.display()
+        );
+    }
     let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.dir.store, &experiment.name));
-    let store = Store::open_existing(&a.store.dir.store)?;
     oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
     println!("wrote {}", out.join("index.md").display());
     Ok(())

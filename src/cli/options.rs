@@ -1,6 +1,7 @@
 //! Options several commands share: the results store, the frames of rendered scenes, and the parser of names in
 //! the configuration's spelling.
 use oneshot_lab::config::{Override, Resolution};
+use oneshot_lab::pipeline::store::Store;
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::camera::Visuals;
 use oneshot_lab::sim::env::WorldConfig;
@@ -16,6 +17,25 @@ pub struct StoreDir {
     /// Store folder (database and artifacts).
     #[arg(long, default_value = DEFAULT_STORE)]
     pub store: PathBuf,
+}
+
+/// The results store, for the commands that only read it (`why`, `status`, `query`, `diff`).
+#[derive(clap::Args)]
+pub struct ReadStoreDir {
+    /// Store folder (database and artifacts).
+    #[arg(long, default_value = DEFAULT_STORE)]
+    pub store: PathBuf,
+    /// Open the store without writing anything to it (automatic where this process cannot write its folder,
+    /// such as a shared results folder).
+    #[arg(long)]
+    pub read_only: bool,
+}
+
+impl ReadStoreDir {
+    /// The store, opened for reading.
+    pub fn open(&self) -> anyhow::Result<Store> {
+        Store::open_for_reading(&self.store, self.read_only)
+    }
 }
 
 /// How an experiment file is resolved: its scale profile and `--set` overrides.

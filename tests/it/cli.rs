@@ -389,3 +389,94 @@ fn completion_scripts_list_the_commands_and_their_options() {
         }
     }
 }
+
+/// Every file under `dir` with its bytes.
+fn snapshot(dir: &std::path::Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
+    let mut files = std::collections::BTreeMap::new();
+    let mut pending = vec![dir.to_path_buf()];
+    while let Some(d) = pending.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                pending.push(path);
+            } else {
+                files.insert(path.clone(), std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    files
+}
+
+#[test]
+fn a_store_opened_read_only_serves_every_reading_command_without_changing_a_byte() {
+    let dir = scratch("cli-store-read-only");
+    let store = dir.join("store");
+    let file = dir.join("refs.toml");
+    std::fs::write(
+        &file,
+        "name = \"refs\"\n[world.image]\nheight = 32\nwidth = 40\n[eval]\nepisodes = 2\nhorizon = 3\nbatch = 2\n\
+         [grid]\nsizes = []\nreferences = [\"random\"]\n",
+    )
+    .unwrap();
+    let (file, store_arg) = (file.to_str().unwrap(), store.to_str().unwrap());
+    let out = oneshot().args(["run", file, "--store", store_arg, "--workers", "1"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    let key: String = conn.query_row("SELECT key FROM stages LIMIT 1", [], |r| r.get(0)).unwrap();
+    drop(conn);
+
+    let before = snapshot(&store);
+    let elsewhere = dir.join("report");
+    let elsewhere = elsewhere.to_str().unwrap();
+    for args in [
+        vec!["status", "--read-only"],
+        vec!["why", &key[..8], "--read-only"],
+        vec!["query", "cells", "--read-only"],
+        vec!["diff", &key[..8], &key[..8], "--read-only"],
+        vec!["report", file, "--read-only", "--out", elsewhere],
+    ] {
+        let out = oneshot().args(&args).args(["--store", store_arg]).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    assert!(std::path::Path::new(elsewhere).join("index.md").is_file());
+    let out = oneshot().args(["report", file, "--read-only", "--store", store_arg]).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("pass --out"));
+    assert!(before == snapshot(&store), "a read-only command changed a file of the store");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_store_newer_than_the_binary_is_refused_and_an_older_one_is_migrated() {
+    let dir = scratch("cli-store-schema");
+    let store = dir.join("store");
+    let store_arg = store.to_str().unwrap();
+    let out = oneshot().args(["plan", "experiments/smoke.toml", "--store", store_arg]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let version = || {
+        let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+        conn.query_row("PRAGMA user_version", [], |r| r.get::<_, i64>(0)).unwrap()
+    };
+    let set_version = |v: i64| {
+        let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+        conn.pragma_update(None, "user_version", v).unwrap();
+    };
+    assert_eq!(version(), oneshot_lab::pipeline::store::SCHEMA_VERSION);
+
+    set_version(99);
+    for args in [vec!["status"], vec!["query", "cells"], vec!["plan", "experiments/smoke.toml"]] {
+        let out = oneshot().args(&args).args(["--store", store_arg]).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("schema version 99, newer"), "{args:?}: {err}");
+    }
+
+    // A store from before versions were recorded reads 0: a read-only opening cannot migrate it and says how;
+    // a writable one migrates it.
+    set_version(0);
+    let out = oneshot().args(["status", "--read-only", "--store", store_arg]).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("older"));
+    assert_eq!(version(), 0);
+    let out = oneshot().args(["status", "--store", store_arg]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(version(), oneshot_lab::pipeline::store::SCHEMA_VERSION);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -29,6 +29,11 @@ use std::time::Duration;
 /// File name of the database inside the store folder.
 pub const DATABASE: &str = "oneshot.sqlite";
 
+/// Version of the database layout this binary reads and writes (SQLite's `user_version`). Stores from before it
+/// was recorded read 0 and are migrated on their first writable opening ([`migrate`]); a store newer than the
+/// binary is refused rather than misread.
+pub const SCHEMA_VERSION: i64 = 1;
+
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS stages (
     key TEXT PRIMARY KEY, kind TEXT NOT NULL, version INTEGER NOT NULL, inputs TEXT NOT NULL,
@@ -78,6 +83,76 @@ fn relative_artifact_paths(conn: &Connection) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Brings a store of an older layout to [`SCHEMA_VERSION`]: each step is idempotent, so an interrupted migration
+/// reruns safely.
+fn migrate(conn: &mut Connection, path: &Path) -> Result<()> {
+    // One writer at a time: a second process opening the same old store waits, then finds it migrated.
+    let tx = conn.transaction_with_behavior(TransactionBehavior::Immediate)?;
+    if schema_version(&tx, path)? < SCHEMA_VERSION {
+        tx.execute_batch(SCHEMA).with_context(|| format!("creating the schema in {}", path.display()))?;
+        // Version 0 -> 1: artifact paths relative to the store, and the experiments' `--set` overrides.
+        relative_artifact_paths(&tx).with_context(|| format!("updating artifact paths in {}", path.display()))?;
+        let has_overrides =
+            tx.prepare("SELECT 1 FROM pragma_table_info('experiments') WHERE name = 'overrides'")?.exists([])?;
+        if !has_overrides {
+            tx.execute_batch("ALTER TABLE experiments ADD COLUMN overrides TEXT NOT NULL DEFAULT ''")
+                .with_context(|| format!("adding the experiments' overrides to {}", path.display()))?;
+        }
+        tx.pragma_update(None, "user_version", SCHEMA_VERSION)?;
+    }
+    tx.commit()?;
+    Ok(())
+}
+
+/// The layout version of the database at `path`, refused when newer than this binary's.
+pub(crate) fn schema_version(conn: &Connection, path: &Path) -> Result<i64> {
+    let version: i64 = conn
+        .query_row("PRAGMA user_version", [], |r| r.get(0))
+        .with_context(|| format!("reading {}", path.display()))?;
+    if version > SCHEMA_VERSION {
+        bail!(
+            "{} has store schema version {version}, newer than this oneshot-lab's {SCHEMA_VERSION}: it was written by a \
+             newer release; use that release (or a newer one) to read it",
+            path.display()
+        );
+    }
+    Ok(version)
+}
+
+/// A connection that cannot write the database at `path`, nor create files beside it. Without a write-ahead log
+/// beside it (no writer has it open: the last one to close folds the log into the database) the database is
+/// opened as immutable, read as it is on disk, since even a read-only WAL connection would create the log's index
+/// files. With a log (a writer at work, or one that died) it is opened read-only through the log, which SQLite
+/// needs to read the latest state; an unwritable folder then falls back to the immutable view.
+pub(crate) fn read_only_connection(path: &Path) -> Result<Connection> {
+    use rusqlite::OpenFlags;
+    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_URI | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let readable = |c: &Connection| c.query_row("SELECT count(*) FROM sqlite_master", [], |r| r.get::<_, i64>(0));
+    let mut wal = path.as_os_str().to_owned();
+    wal.push("-wal");
+    if Path::new(&wal).exists() {
+        let conn = Connection::open_with_flags(path, flags).with_context(|| format!("opening {}", path.display()))?;
+        if readable(&conn).is_ok() {
+            return Ok(conn);
+        }
+    }
+    let uri = format!("file:{}?immutable=1", path.display().to_string().replace('?', "%3f").replace('#', "%23"));
+    let conn = Connection::open_with_flags(&uri, flags).with_context(|| format!("opening {}", path.display()))?;
+    readable(&conn).with_context(|| format!("reading {}", path.display()))?;
+    Ok(conn)
+}
+
+/// Whether this process may write both the store folder and its database (`access(2)`, which sees read-only
+/// mounts and permissions as the kernel will apply them).
+fn writable(root: &Path) -> bool {
+    use std::os::unix::ffi::OsStrExt;
+    let ok = |p: &Path| {
+        std::ffi::CString::new(p.as_os_str().as_bytes())
+            .is_ok_and(|c| unsafe { libc::access(c.as_ptr(), libc::W_OK) } == 0)
+    };
+    ok(root) && ok(&root.join(DATABASE))
 }
 
 /// Seconds since the Unix epoch.
@@ -133,6 +208,8 @@ pub struct Store {
     /// The store folder: artifact paths are recorded relative to it, so a copied or moved store still finds its
     /// own artifacts.
     root: PathBuf,
+    /// Opened without the right to write (`--read-only`, or a folder this process cannot write).
+    read_only: bool,
 }
 
 impl Store {
@@ -142,31 +219,56 @@ impl Store {
         Store::open_database(root)
     }
 
-    /// Opens the store in folder `root`, which must already hold one (commands that only read).
+    /// Opens the store in folder `root`, which must already hold one (commands that change it, such as `gc`).
     pub fn open_existing(root: &Path) -> Result<Store> {
+        Store::existing_database(root)?;
+        Store::open_database(root)
+    }
+
+    /// Opens the store in folder `root`, which must already hold one, for a command that only reads it: without
+    /// writing anything where `read_only` is set or this process cannot write the folder, otherwise as
+    /// [`Store::open_existing`] (which migrates an older layout).
+    pub fn open_for_reading(root: &Path, read_only: bool) -> Result<Store> {
+        let path = Store::existing_database(root)?;
+        if !read_only && writable(root) {
+            return Store::open_database(root);
+        }
+        let conn = read_only_connection(&path)?;
+        let version = schema_version(&conn, &path)?;
+        if version < SCHEMA_VERSION {
+            bail!(
+                "{} has store schema version {version}, older than this oneshot-lab's {SCHEMA_VERSION}, and is opened \
+                 read-only: open it once where it can be written (any `status` without --read-only) to migrate it",
+                path.display()
+            );
+        }
+        Ok(Store { conn, root: root.to_path_buf(), read_only: true })
+    }
+
+    /// Whether the store was opened without the right to write.
+    pub fn is_read_only(&self) -> bool {
+        self.read_only
+    }
+
+    /// The database file of an existing store in `root`.
+    fn existing_database(root: &Path) -> Result<PathBuf> {
         let path = root.join(DATABASE);
         if !path.is_file() {
             bail!("no results store at {} (run an experiment there first, or pass --store)", path.display());
         }
-        Store::open_database(root)
+        Ok(path)
     }
 
     fn open_database(root: &Path) -> Result<Store> {
         let path = root.join(DATABASE);
-        let conn = Connection::open(&path).with_context(|| format!("opening {}", path.display()))?;
+        let mut conn = Connection::open(&path).with_context(|| format!("opening {}", path.display()))?;
         conn.busy_timeout(Duration::from_secs(60))?;
+        if schema_version(&conn, &path)? < SCHEMA_VERSION {
+            migrate(&mut conn, &path)?;
+        }
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "NORMAL")?;
-        conn.execute_batch(SCHEMA).with_context(|| format!("creating the schema in {}", path.display()))?;
-        relative_artifact_paths(&conn).with_context(|| format!("updating artifact paths in {}", path.display()))?;
-        // Stores made before `--set` existed lack the experiments' overrides.
-        let has_overrides =
-            conn.prepare("SELECT 1 FROM pragma_table_info('experiments') WHERE name = 'overrides'")?.exists([])?;
-        if !has_overrides {
-            conn.execute_batch("ALTER TABLE experiments ADD COLUMN overrides TEXT NOT NULL DEFAULT ''")
-                .with_context(|| format!("adding the experiments' overrides to {}", path.display()))?;
-        }
-        Ok(Store { conn, root: root.to_path_buf() })
+        Ok(Store { conn, root: root.to_path_buf(), read_only: false })
     }
 
     /// Records the stages (inputs and upstream) of a plan, keeping what is already known.

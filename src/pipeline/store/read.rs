@@ -312,8 +312,8 @@ impl Store {
         if !path.is_file() {
             bail!("no results store at {} (run an experiment there first, or pass --store)", path.display());
         }
-        let mut conn = rusqlite::Connection::open_with_flags(&path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
-            .with_context(|| format!("opening {}", path.display()))?;
+        let mut conn = super::read_only_connection(&path)?;
+        super::schema_version(&conn, &path)?;
         // A read-only connection still lets `ATTACH` create a file and `VACUUM INTO` write one: the authorizer
         // lets a statement only read, and a statement SQLite does not call read-only is refused too.
         conn.authorizer(Some(reads_only)).context("installing the read-only authorizer")?;
