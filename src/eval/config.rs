@@ -59,6 +59,10 @@ pub struct EvalConfig {
     /// Episode indices to record as animated GIFs (the demonstration beside the rollout, with its stages); the
     /// report links them.
     pub videos: Vec<usize>,
+    /// Width of the videos' frames: each episode recorded is replayed in a scene that renders this wide (the
+    /// height in the policy frame's proportions), so a video shows what the policy saw at a size a person can
+    /// see; frames at least this wide already are kept as they are.
+    pub video_width: usize,
     /// How the agent's recent frames are kept (the authors clear them once `history_frames` are held).
     pub history: HistoryMode,
     /// Most agent frames the network sees; at most `model.agent_frames - 1`, the window positions that
@@ -92,6 +96,7 @@ impl Default for EvalConfig {
             device: "auto".into(),
             strips: Vec::new(),
             videos: Vec::new(),
+            video_width: 320,
             history: HistoryMode::Reset,
             history_frames: 5,
             action: ActionChoice::Sample,
@@ -126,6 +131,9 @@ impl EvalConfig {
         }
         if let Some(i) = self.videos.iter().find(|&&i| i >= self.episodes) {
             bail!("eval.videos contains episode {i}, but there are {} episodes", self.episodes);
+        }
+        if !(16..=1024).contains(&self.video_width) {
+            bail!("eval.video_width = {} out of range 16..=1024", self.video_width);
         }
         crate::device::check_device_name(&self.device)?;
         Ok(())

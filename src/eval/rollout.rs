@@ -129,9 +129,11 @@ fn run_wave(
     if let (Actor::Network(p), true) = (policy, scripted) {
         pool.guide(&predicted_guidance(p, &inputs, world, device)?)?;
     }
-    // Frames of the episodes drawn as strips or videos, each with the stages that held when it was seen.
-    let recorded: Vec<bool> =
-        wave.iter().map(|e| config.strips.contains(&e.index) || config.videos.contains(&e.index)).collect();
+    // Frames of the episodes drawn as strips, each with the stages that held when it was seen; the executed
+    // actions of those recorded as videos, replayed at the video's size once the wave is done.
+    let recorded: Vec<bool> = wave.iter().map(|e| config.strips.contains(&e.index)).collect();
+    let filmed: Vec<bool> = wave.iter().map(|e| config.videos.contains(&e.index)).collect();
+    let mut executed: Vec<Vec<Action>> = vec![Vec::new(); n];
     let mut frames: Vec<Vec<(Vec<u8>, Milestones)>> = started
         .iter()
         .zip(&recorded)
@@ -190,6 +192,9 @@ fn run_wave(
             if recorded[j] {
                 frames[j].push((s.frame.clone(), s.milestones));
             }
+            if let (true, Some(action)) = (filmed[j], s.action) {
+                executed[j].push(action);
+            }
         }
     }
     if let Some(dir) = &output.strips_dir {
@@ -201,8 +206,10 @@ fn run_wave(
         }
     }
     if let Some(dir) = &output.videos_dir {
-        for j in (0..n).filter(|&j| config.videos.contains(&wave[j].index)) {
-            video::write_video(dir, &started[j].demo_frames, &frames[j], world.image, world.policy_hz, &results[j])
+        let size = video::video_size(world.image, config.video_width);
+        for j in (0..n).filter(|&j| filmed[j]) {
+            let (demo, agent) = video::replay(world, size, &results[j], &executed[j], config.demo_max_actions)?;
+            video::write_video(dir, &demo, &agent, size, world.policy_hz, &results[j])
                 .with_context(|| format!("writing the video of episode {}", wave[j].index))?;
         }
     }

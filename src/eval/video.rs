@@ -2,9 +2,14 @@
 //! the policy's rate, with a bar under the agent's frame whose three squares light up as the episode reaches,
 //! picks and places.
 use super::EpisodeResult;
+use crate::sim::action::Action;
 use crate::sim::camera::ImageSize;
+use crate::sim::env::{Env, WorldConfig};
 use crate::sim::milestones::Milestones;
-use anyhow::{Context, Result};
+use crate::sim::robot::Robot;
+use crate::sim::rollout::run_expert;
+use crate::sim::task::{Instance, Task};
+use anyhow::{Context, Result, bail};
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame, Rgba, RgbaImage};
 use std::path::{Path, PathBuf};
@@ -25,6 +30,61 @@ pub fn file_name(result: &EpisodeResult) -> String {
         _ => "failed",
     };
     format!("episode_{:04}_task{:02}_{outcome}.gif", result.index, result.task)
+}
+
+/// The frames of a video of `size`, beside the policy's: where the policy sees frames narrower than `width`, the
+/// same view `width` pixels wide (the height keeps the policy frame's proportions); otherwise the policy's frames.
+pub fn video_size(policy: ImageSize, width: usize) -> ImageSize {
+    if policy.width >= width {
+        return policy;
+    }
+    let height = (policy.height as f64 * width as f64 / policy.width as f64).round() as usize;
+    ImageSize { height, width }
+}
+
+/// A replayed episode: the demonstration's frames, and the agent's with the stages after each.
+pub type Replayed = (Vec<Vec<u8>>, Vec<(Vec<u8>, Milestones)>);
+
+/// An episode rendered again at `size`: the demonstrator's expert replayed from the layout its demonstration
+/// succeeded on, and the agent's commands replayed from its layout, each in a scene whose camera renders at
+/// `size` (the physics is the same scene's, so the replay takes the same path). Returns the demonstration's
+/// frames and the agent's with the stages after each; an agent replay that ends in other stages than
+/// `result` is an error rather than a misleading video.
+pub fn replay(
+    world: &WorldConfig,
+    size: ImageSize,
+    result: &EpisodeResult,
+    commands: &[Action],
+    demo_max_actions: usize,
+) -> Result<Replayed> {
+    let world = WorldConfig { image: size, ..world.clone() };
+    let task = Task::from_id(result.task)?;
+    let mut demo_env = Env::new(Robot::Sawyer, &world, true)?;
+    let demo = run_expert(&mut demo_env, &Instance::sample(task, result.demo_seed), demo_max_actions, true)?;
+    let demo: Vec<Vec<u8>> = demo.steps.into_iter().filter_map(|s| s.frame).collect();
+    let mut env = Env::new(Robot::Panda, &world, true)?;
+    env.reset(&Instance::sample(task, result.agent_seed));
+    let mut agent = vec![(env.render()?, Milestones::default())];
+    for action in commands {
+        env.step(action);
+        agent.push((env.render()?, env.milestones()));
+    }
+    let m = env.milestones();
+    if (m.reached, m.picked, m.placed) != (result.reached, result.picked, result.placed) {
+        bail!(
+            "the replay of episode {} at {}x{} ended reached/picked/placed {}/{}/{}, the episode {}/{}/{}",
+            result.index,
+            size.height,
+            size.width,
+            m.reached,
+            m.picked,
+            m.placed,
+            result.reached,
+            result.picked,
+            result.placed
+        );
+    }
+    Ok((demo, agent))
 }
 
 /// Writes `dir/<file_name>` from the demonstrator's frames and the agent's frames with the stages after each (the

@@ -46,6 +46,8 @@ pub struct Started {
 pub struct Stepped {
     pub frame: Vec<u8>,
     pub milestones: Milestones,
+    /// The action the agent executed (none where the episode was left alone).
+    pub action: Option<Action>,
 }
 
 enum Command {
@@ -121,7 +123,7 @@ impl Worker {
         let camera = self.camera.as_mut().context("step before start")?;
         for (slot, command) in self.slots.iter_mut().zip(commands) {
             let Some(given) = command else {
-                out.push(Stepped { frame: Vec::new(), milestones: slot.env.milestones() });
+                out.push(Stepped { frame: Vec::new(), milestones: slot.env.milestones(), action: None });
                 continue;
             };
             let action = match (given, slot.expert.as_mut(), self.spec.chooser) {
@@ -134,7 +136,8 @@ impl Worker {
                 (None, None, _) => bail!("the network sent no action and no scripted expert runs this episode"),
             };
             slot.env.step(&action);
-            out.push(Stepped { frame: slot.env.render_with(camera)?, milestones: slot.env.milestones() });
+            let frame = slot.env.render_with(camera)?;
+            out.push(Stepped { frame, milestones: slot.env.milestones(), action: Some(action) });
         }
         Ok(out)
     }

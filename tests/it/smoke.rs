@@ -61,8 +61,10 @@ fn the_smoke_experiment_runs_the_whole_chain_and_reports() {
         assert!(v.contains("episode_0000_task00") && index.contains(&format!("(videos/{v})")), "{v}");
         let gif = std::fs::File::open(report.join("videos").join(v)).unwrap();
         let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif)).unwrap();
-        let frames = image::AnimationDecoder::into_frames(decoder).count();
-        assert!(frames > 20, "{v} has {frames} frames");
+        let frames: Vec<_> = image::AnimationDecoder::into_frames(decoder).collect::<Result<_, _>>().unwrap();
+        assert!(frames.len() > 20, "{v} has {} frames", frames.len());
+        // Rendered 320 wide (eval.video_width) beside the demonstration, though the policy sees 64x80.
+        assert_eq!(frames[0].buffer().width(), 2 * 320, "{v}");
     }
     // The self-contained page: every figure inlined as SVG, every video embedded, no link into the folder but the
     // table files.

@@ -42,7 +42,15 @@ fn identity(e: &EvalConfig) -> EvalConfig {
 /// change results and who acts, less the settings added after keys existed at their earlier value.
 fn key_inputs(world: &WorldConfig, eval: &EvalConfig, policy: &str) -> Value {
     let mut inputs = json!({ "world": world, "eval": identity(eval), "policy": policy });
-    omit_when(&mut inputs, &[super::neutral_world(), ("eval.videos", json!([])), ("eval.control", json!("policy"))]);
+    omit_when(
+        &mut inputs,
+        &[
+            super::neutral_world(),
+            ("eval.videos", json!([])),
+            ("eval.control", json!("policy")),
+            ("eval.video_width", json!(320)),
+        ],
+    );
     inputs
 }
 
