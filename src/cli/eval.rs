@@ -177,6 +177,14 @@ pub struct LocaliseArgs {
     /// Write the trained trunk here (safetensors with torchvision names), for `model.pretrained_backbone`.
     #[arg(long)]
     pub save_trunk: Option<PathBuf>,
+    /// With `--target grasp`: the head also reads where attention from the task over the trunk's feature map
+    /// lands (the policy's `model.object_attention`).
+    #[arg(long)]
+    pub object_attention: bool,
+    /// Start the trunk from these weights (a `--save-trunk` file, or a pretrain stage's `trunk.safetensors`)
+    /// rather than from scratch.
+    #[arg(long)]
+    pub init_trunk: Option<PathBuf>,
 }
 
 /// Augmentation of the localisation check's training frames.
@@ -269,6 +277,8 @@ pub fn localise(a: LocaliseArgs) -> Result<()> {
     pretrain.validate()?;
     let mut config = pretrain.localise((a.backbone_width, a.backbone_stages), None, a.seed, a.save_trunk.clone());
     config.report_every = a.report_every.unwrap_or(config.report_every);
+    config.object_attention = a.object_attention;
+    config.init_trunk = a.init_trunk.clone();
     let r = oneshot_lab::train::pretrain::localise(&a.agents, &config, parse_device(&a.device)?)?;
     let cm = |e: [f64; 2]| format!("{:5.2} / {:5.2}", 100.0 * e[0], 100.0 * e[1]);
     let (what, baseline) = match pretrain.target {

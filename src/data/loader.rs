@@ -47,6 +47,16 @@ pub enum AugmentAt {
 }
 
 impl Batch {
+    /// Quantises the actions to multiples of `1 / resolution`, truncating towards zero (`train.action_resolution`;
+    /// 0 leaves them exact).
+    pub fn quantise_actions(mut self, resolution: u32) -> Batch {
+        if resolution > 0 {
+            let r = resolution as f32;
+            self.actions.iter_mut().for_each(|a| *a = (*a * r).trunc() / r);
+        }
+        self
+    }
+
     /// Stacks samples (all drawn in one [`FrameForm`]); raw frames become host tensors, pinned for `pin_for` when
     /// it is a GPU.
     pub fn from_samples(
@@ -249,5 +259,27 @@ impl Drop for Prefetcher {
                 let _ = h.join();
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn actions_are_quantised_towards_zero_as_the_authors_record_them() {
+        let batch = |actions: Vec<f32>| Batch {
+            size: 1,
+            frames: BatchFrames::Normalised { context: vec![], agent: vec![] },
+            actions,
+            points: vec![],
+            poses: vec![],
+            tasks: vec![],
+            sources: vec![],
+        };
+        let exact = vec![0.999, -0.999, 0.5, 0.0039, -0.0039, 1.0];
+        let q = batch(exact.clone()).quantise_actions(128).actions;
+        assert_eq!(q, [127.0 / 128.0, -127.0 / 128.0, 0.5, 0.0, 0.0, 1.0]);
+        assert_eq!(batch(exact.clone()).quantise_actions(0).actions, exact);
     }
 }

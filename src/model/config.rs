@@ -140,6 +140,12 @@ pub struct ModelConfig {
     /// context to say which task it shows, the selection a policy must make. A departure: the authors have no
     /// such head (false).
     pub task_head: bool,
+    /// An extra path on the transformer (and its no-attention ablation): attention from the task embedding over
+    /// each agent frame's spatial tokens, `attention_heads` maps whose expected (x, y) join the frame's embedding
+    /// in the action, inverse and pose heads. It lets the network combine which object the demonstration names
+    /// with where that object is in the agent's view. A departure: the authors read each agent frame only through
+    /// its spatial softmax (false).
+    pub object_attention: bool,
 }
 
 impl Default for ModelConfig {
@@ -171,6 +177,7 @@ impl Default for ModelConfig {
             agent_frames: 7,
             pose_head: false,
             task_head: false,
+            object_attention: false,
         }
     }
 }
@@ -240,6 +247,13 @@ impl ModelConfig {
         if self.task_head && !registration.paper_heads {
             bail!(
                 "model.task_head = true needs an architecture that ends in the paper's heads, not {:?}",
+                self.architecture.0
+            );
+        }
+        if self.object_attention && !registration.spatial_tokens {
+            bail!(
+                "model.object_attention = true needs an architecture that keeps each frame's spatial tokens \
+                 (transformer, temporal_conv), not {:?}",
                 self.architecture.0
             );
         }

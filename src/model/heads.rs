@@ -28,6 +28,51 @@ pub fn spatial_softmax(x: &Tensor) -> Tensor {
     Tensor::cat(&[ex, ey], 1)
 }
 
+/// `model.object_attention`: attention from the task embedding over each agent frame's spatial tokens. Each head
+/// projects the task to a query and every token of the frame to a key; its softmax over the frame's positions
+/// gives a map whose expected (x, y) in [-1, 1] says where the demonstrated thing is in the agent's own view.
+#[derive(Debug)]
+pub struct ObjectAttention {
+    query: nn::Linear,
+    key: nn::Linear,
+    heads: i64,
+}
+
+impl ObjectAttention {
+    /// Attention of `heads` heads of `inner / heads` channels each, from `latent`-wide task embeddings over
+    /// `channels`-wide tokens.
+    pub fn new(vs: &nn::Path, latent: i64, channels: i64, heads: i64, inner: i64) -> ObjectAttention {
+        let nobias = nn::LinearConfig { bias: false, ..Default::default() };
+        ObjectAttention {
+            query: nn::linear(vs / "query", latent, inner, nobias),
+            key: nn::linear(vs / "key", channels, inner, nobias),
+            heads,
+        }
+    }
+
+    /// Output width: an (x, y) per head.
+    pub fn width(&self) -> i64 {
+        2 * self.heads
+    }
+
+    /// Expected positions `[B, Ta, 2 * heads]` (x then y per head) for task embeddings `[B, latent]` over frames
+    /// `[B, Ta, C, h, w]`.
+    pub fn forward(&self, task: &Tensor, frames: &Tensor) -> Tensor {
+        let (b, ta, c, h, w) = frames.size5().expect("frames are [B, Ta, C, h, w]");
+        let tokens = frames.permute([0, 1, 3, 4, 2]).reshape([b, ta, h * w, c]);
+        let keys = self.key.forward(&tokens).view([b, ta, h * w, self.heads, -1]).permute([0, 1, 3, 2, 4]);
+        let d = keys.size()[4];
+        let query = self.query.forward(task).view([b, 1, self.heads, 1, d]);
+        let scores = (keys * query).sum_dim_intlist([-1i64].as_slice(), false, Kind::Float) / (d as f64).sqrt();
+        let maps = scores.softmax(-1, Kind::Float);
+        let opts = (Kind::Float, frames.device());
+        let xs = Tensor::linspace(-1.0, 1.0, w, opts).repeat([h]);
+        let ys = Tensor::linspace(-1.0, 1.0, h, opts).repeat_interleave_self_int(w, 0, None);
+        let grid = Tensor::stack(&[xs, ys], 1);
+        maps.matmul(&grid).reshape([b, ta, 2 * self.heads])
+    }
+}
+
 /// Linear -> dropout -> ReLU -> Linear -> L2 normalisation.
 #[derive(Debug)]
 pub struct EmbeddingMlp {
@@ -98,18 +143,18 @@ pub struct PolicyHeads {
 }
 
 impl PolicyHeads {
-    /// Heads over `latent`-wide embeddings, under `vs` (parameters `policy`, `inverse`, `action_head`,
-    /// `point_head`, and `pose_head` and `task_head` when the model has them).
-    pub fn new(vs: &nn::Path, latent: i64, config: &ModelConfig) -> PolicyHeads {
+    /// Heads over `latent`-wide task embeddings and `frame`-wide frame features, under `vs` (parameters `policy`,
+    /// `inverse`, `action_head`, `point_head`, and `pose_head` and `task_head` when the model has them).
+    pub fn new(vs: &nn::Path, latent: i64, frame: i64, config: &ModelConfig) -> PolicyHeads {
         PolicyHeads {
-            policy: nn::linear(vs / "policy", 2 * latent, config.policy_hidden, Default::default()),
-            inverse: nn::linear(vs / "inverse", 2 * latent, config.policy_hidden, Default::default()),
+            policy: nn::linear(vs / "policy", latent + frame, config.policy_hidden, Default::default()),
+            inverse: nn::linear(vs / "inverse", 2 * frame, config.policy_hidden, Default::default()),
             action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
             point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
             pose_head: config.pose_head.then(|| {
                 let p = vs / "pose_head";
                 (
-                    nn::linear(&p / "hidden", 2 * latent, config.point_hidden, Default::default()),
+                    nn::linear(&p / "hidden", latent + frame, config.point_hidden, Default::default()),
                     nn::linear(&p / "out", config.point_hidden, 6, Default::default()),
                 )
             }),
@@ -119,7 +164,7 @@ impl PolicyHeads {
         }
     }
 
-    /// Outputs for a task embedding `[B, latent]` and frame embeddings `[B, Ta, latent]`.
+    /// Outputs for a task embedding `[B, latent]` and frame features `[B, Ta, frame]`.
     pub fn forward(&self, task: &Tensor, frames: &Tensor) -> PolicyOutput {
         let (b, ta) = (frames.size()[0], frames.size()[1]);
         let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
@@ -174,6 +219,30 @@ mod tests {
         let _ = x.get(0).get(0).get(2).get(4).fill_(50.0);
         let s = spatial_softmax(&x);
         assert!((s.double_value(&[0, 0]) - 1.0).abs() < 1e-4 && (s.double_value(&[0, 1]) - 1.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn object_attention_returns_the_position_of_the_object_the_task_names() {
+        // Object A lights channel 0 at the top-left cell, object B channel 1 at the bottom-right one. The key is
+        // channel 0 minus channel 1, the query the task's one entry: a positive task looks at A, a negative at B.
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let attention = ObjectAttention::new(&vs.root(), 1, 2, 1, 1);
+        tch::no_grad(|| {
+            let mut vars = vs.variables();
+            vars.get_mut("key.weight").unwrap().copy_(&Tensor::from_slice(&[1.0f32, -1.0]).view([1, 2]));
+            vars.get_mut("query.weight").unwrap().copy_(&Tensor::from_slice(&[1.0f32]).view([1, 1]));
+        });
+        let frames = Tensor::zeros([1, 1, 2, 3, 5], (Kind::Float, tch::Device::Cpu));
+        let _ = frames.get(0).get(0).get(0).get(0).get(0).fill_(1.0);
+        let _ = frames.get(0).get(0).get(1).get(2).get(4).fill_(1.0);
+        let at = |task: f32| -> Vec<f32> {
+            let task = Tensor::from_slice(&[task]).view([1, 1]);
+            Vec::try_from(attention.forward(&task, &frames).view([-1])).unwrap()
+        };
+        let (a, b) = (at(40.0), at(-40.0));
+        assert!(a.iter().all(|v| (v + 1.0).abs() < 1e-3), "object A at (-1, -1): {a:?}");
+        assert!(b.iter().all(|v| (v - 1.0).abs() < 1e-3), "object B at (1, 1): {b:?}");
+        assert_eq!(attention.width(), 2);
     }
 
     #[test]

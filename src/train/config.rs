@@ -28,6 +28,9 @@ pub struct LossWeights {
 /// The authors' probability that a training window starts at its trajectory's first frame.
 pub const AUTHORS_WINDOW_START: f64 = 0.2;
 
+/// The authors' quantisation of recorded actions: multiples of 1/128 in normalised units.
+pub const AUTHORS_ACTION_RESOLUTION: u32 = 128;
+
 impl TrainConfig {
     /// Where training windows are drawn.
     pub fn windows(&self) -> Windows {
@@ -145,6 +148,10 @@ pub struct TrainConfig {
     /// Probability that a training window starts at its trajectory's first frame, where only the picture says
     /// where the object is (the authors' 0.2; each window also ends the trajectory with probability 0.2).
     pub window_start: f64,
+    /// Training actions (and the inverse model's targets) are quantised to multiples of 1 / this in normalised
+    /// units, truncated towards zero, as the authors' recorded actions are (`normalize_action` in
+    /// `custom_ik_wrapper.py`: 128); 0 keeps them exact.
+    pub action_resolution: u32,
     /// Batches prepared ahead of the training step on a background thread; 0 prepares each when it is needed
     /// (faster where the cores are few: the two do not compete).
     pub prefetch: usize,
@@ -171,6 +178,7 @@ impl Default for TrainConfig {
             augmentation: Augmentation::default(),
             loss: LossWeights::default(),
             window_start: AUTHORS_WINDOW_START,
+            action_resolution: AUTHORS_ACTION_RESOLUTION,
             prefetch: 4,
         }
     }

@@ -9,7 +9,7 @@
 use crate::data::augment::{AugmentDraw, Augmentation};
 use crate::data::manifest::{Manifest, ManifestEntry};
 use crate::data::trajectory::Trajectory;
-use crate::model::heads::spatial_softmax;
+use crate::model::heads::{ObjectAttention, spatial_softmax};
 use crate::model::resnet::ResNet18;
 use crate::sim::task::NUM_TASKS;
 use anyhow::{Context, Result, bail};
@@ -50,7 +50,16 @@ pub struct LocaliseConfig {
     pub augmentation: Option<Augmentation>,
     /// Where to write the trained trunk's weights (torchvision names, as `model.pretrained_backbone` reads them).
     pub trunk_out: Option<PathBuf>,
+    /// For `Grasp`: the head also reads where attention from the task over the trunk's feature map lands (the
+    /// policy's `model.object_attention`, with the task's one-hot as the query's input).
+    pub object_attention: bool,
+    /// Start the trunk from these weights (a saved trunk, torchvision names) rather than from scratch.
+    pub init_trunk: Option<PathBuf>,
 }
+
+/// Heads and inner width of the check's object attention.
+const ATTENTION_HEADS: i64 = 4;
+const ATTENTION_INNER: i64 = 64;
 
 /// The `[pretrain]` section of an experiment: a stage that trains the policy's image trunk on this check's
 /// regression over the agent collection's first frames, then starts the policy from it in place of
@@ -113,6 +122,8 @@ impl PretrainConfig {
             target: self.target,
             augmentation: self.augmentation.clone(),
             trunk_out,
+            object_attention: false,
+            init_trunk: None,
         }
     }
 }
@@ -205,6 +216,9 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
     if config.hold_out_every < 2 || config.batch < 1 || config.steps == 0 || config.report_every == 0 {
         bail!("localise: hold_out_every must be at least 2, batch, steps and report_every at least 1");
     }
+    if config.object_attention && config.target != LocaliseTarget::Grasp {
+        bail!("localise: object attention needs the grasp target, which tells the head the task");
+    }
     let every = config.hold_out_every;
     // Held out by layout: a shared layout's trajectories under other tasks are held out with it.
     let held = |i: usize, e: &ManifestEntry| e.environment.unwrap_or(i as u64).is_multiple_of(every as u64);
@@ -224,15 +238,38 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
     };
 
     tch::manual_seed(crate::seeds::derive_seed("localise", &[config.seed]) as i64);
-    let vs = nn::VarStore::new(device);
+    let mut vs = nn::VarStore::new(device);
     let root = vs.root();
     let trunk = ResNet18::new(&(&root / "backbone"), config.backbone_width, config.backbone_stages);
-    let features = 2 * trunk.out_channels() + if told_task { NUM_TASKS as i64 } else { 0 };
+    let channels = trunk.out_channels();
+    let attention = config.object_attention.then(|| {
+        ObjectAttention::new(
+            &(&root / "object_attention"),
+            NUM_TASKS as i64,
+            channels,
+            ATTENTION_HEADS,
+            ATTENTION_INNER,
+        )
+    });
+    let features = 2 * channels
+        + if told_task { NUM_TASKS as i64 } else { 0 }
+        + attention.as_ref().map_or(0, ObjectAttention::width);
     let hidden = nn::linear(&root / "hidden", features, 64, Default::default());
     let out = nn::linear(&root / "out", 64, train.targets.size()[1], Default::default());
+    if let Some(path) = &config.init_trunk {
+        crate::train::checkpoint::load_backbone(&mut vs, path)?;
+    }
     let forward = |frames: &Tensor, tasks: &Tensor, train: bool| {
-        let points = spatial_softmax(&trunk.forward_t(&frames.to_device(device), train));
-        let x = if told_task { Tensor::cat(&[points, tasks.to_device(device)], 1) } else { points };
+        let feats = trunk.forward_t(&frames.to_device(device), train);
+        let tasks = tasks.to_device(device);
+        let mut x = vec![spatial_softmax(&feats)];
+        if told_task {
+            x.push(tasks.shallow_clone());
+        }
+        if let Some(a) = &attention {
+            x.push(a.forward(&tasks, &feats.unsqueeze(1)).squeeze_dim(1));
+        }
+        let x = Tensor::cat(&x, 1);
         out.forward(&hidden.forward(&x).relu()).to_device(Device::Cpu) * &scale + &mean
     };
     let score = |set: &FirstFrames| {

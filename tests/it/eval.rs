@@ -127,15 +127,20 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         target: LocaliseTarget::Grasp,
         trunk_out: None,
         augmentation: None,
+        object_attention: false,
+        init_trunk: None,
     };
     let trunk_file = dir.join("trunks").join("trunk.safetensors");
     let mut last_train = vec![];
     let jitter = oneshot_lab::data::augment::Augmentation::default();
-    for (target, augmentation) in
-        [(LocaliseTarget::Grasp, None), (LocaliseTarget::Objects, None), (LocaliseTarget::Objects, Some(jitter))]
-    {
+    for (target, augmentation, object_attention) in [
+        (LocaliseTarget::Grasp, None, false),
+        (LocaliseTarget::Objects, None, false),
+        (LocaliseTarget::Objects, Some(jitter), false),
+        (LocaliseTarget::Grasp, None, true),
+    ] {
         let trunk_out = (target == LocaliseTarget::Objects && augmentation.is_none()).then(|| trunk_file.clone());
-        let run = LocaliseConfig { target, trunk_out, augmentation, ..config.clone() };
+        let run = LocaliseConfig { target, trunk_out, augmentation, object_attention, ..config.clone() };
         let r = localise(&dir.join("panda"), &run, tch::Device::Cpu).unwrap();
         last_train.push(r.curve[3].train);
         assert_eq!((r.train_frames, r.held_out_frames, r.height, r.width), (16, 4, 32, 40));
@@ -154,6 +159,16 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
     let subset = LocaliseConfig { per_task: Some(10), steps: 1, report_every: 1, ..config.clone() };
     let r = localise(&dir.join("panda"), &subset, tch::Device::Cpu).unwrap();
     assert_eq!((r.train_frames, r.held_out_frames), (8, 2));
+    // A run started from the saved trunk begins elsewhere than one from scratch (same seed, same head); a missing
+    // trunk file is an error naming it.
+    let from = |init_trunk: Option<std::path::PathBuf>| {
+        let run = LocaliseConfig { steps: 1, report_every: 1, init_trunk, ..config.clone() };
+        localise(&dir.join("panda"), &run, tch::Device::Cpu)
+    };
+    let (scratch_start, trunk_start) = (from(None).unwrap().curve[0].train, from(Some(trunk_file.clone())).unwrap());
+    assert_ne!(scratch_start, trunk_start.curve[0].train);
+    let err = format!("{:#}", from(Some(dir.join("no-trunk.safetensors"))).unwrap_err());
+    assert!(err.contains("no-trunk.safetensors"), "{err}");
     // Augmented training frames (same seed, same batches) train a different trunk.
     assert_ne!(last_train[1], last_train[2]);
     // The trained trunk starts a policy of the same widths through `model.pretrained_backbone`: every one of the
@@ -191,7 +206,70 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
     .unwrap();
     assert_eq!((r.train_frames, r.held_out_frames), (envs.len() - held, held));
 
+    let untold = LocaliseConfig { target: LocaliseTarget::Objects, object_attention: true, ..config.clone() };
+    let err = localise(&dir.join("panda"), &untold, tch::Device::Cpu).unwrap_err().to_string();
+    assert!(err.contains("object attention") && err.contains("grasp"), "{err}");
+
     let missing = localise(&dir.join("nowhere"), &config, tch::Device::Cpu).unwrap_err();
     assert!(format!("{missing:#}").contains("nowhere"), "{missing:#}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video() {
+    use oneshot_lab::eval::EpisodeResult;
+    use oneshot_lab::eval::video::{replay, video_size};
+    use oneshot_lab::sim::env::Env;
+    use oneshot_lab::sim::expert::Expert;
+    use oneshot_lab::sim::robot::Robot;
+    use oneshot_lab::sim::task::{Instance, Task};
+    // An episode as the evaluation runs it: the agent's scene stepped by its actions, its frames rendered.
+    let world = world();
+    let task = Task::from_id(6).unwrap();
+    let (agent_seed, demo_seed) = (11, 12);
+    let mut env = Env::new(Robot::Panda, &world, true).unwrap();
+    env.reset(&Instance::sample(task, agent_seed));
+    let mut expert = Expert::new(&env);
+    let (mut frames, mut actions) = (vec![env.render().unwrap()], vec![]);
+    for _ in 0..40 {
+        let a = expert.act(&env);
+        env.step(&a);
+        actions.push(a);
+        frames.push(env.render().unwrap());
+    }
+    let m = env.milestones();
+    let result = EpisodeResult {
+        index: 0,
+        task: 6,
+        agent_seed,
+        demo_seed,
+        reached: m.reached,
+        picked: m.picked,
+        placed: m.placed,
+        steps: actions.len(),
+        first_reached: None,
+        first_picked: None,
+        first_placed: None,
+    };
+    assert!(m.picked, "the expert picks within 40 actions");
+
+    // At the policy's size the replay is the episode, frame for frame.
+    let (demo, agent) = replay(&world, world.image, &result, &actions, 100).unwrap();
+    assert_eq!(agent.len(), frames.len());
+    assert!(agent.iter().zip(&frames).all(|((a, _), f)| a == f), "the replay renders the episode's own frames");
+    assert!(!demo.is_empty() && demo[0].len() == frames[0].len());
+
+    // At the video's size, the same path, four times as wide and high.
+    let big = video_size(world.image, 160);
+    assert_eq!((big.height, big.width), (128, 160));
+    let (demo, agent) = replay(&world, big, &result, &actions, 100).unwrap();
+    assert_eq!(agent.len(), frames.len());
+    assert!(agent.iter().map(|(f, _)| f).chain(&demo).all(|f| f.len() == big.rgb_len()));
+    assert_eq!(agent.last().unwrap().1, m);
+    assert_eq!(video_size(world.image, 40), world.image, "frames already as wide are kept");
+
+    // A replay that does not end where the episode did is refused.
+    let claimed = EpisodeResult { placed: !m.placed, ..result };
+    let err = replay(&world, world.image, &claimed, &actions, 100).unwrap_err().to_string();
+    assert!(err.contains("replay of episode 0"), "{err}");
 }

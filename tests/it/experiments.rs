@@ -136,6 +136,12 @@ fn settings_added_after_keys_existed_stay_out_of_them_at_their_first_value() {
     let model = |extra: &str| stage_inputs(extra, |c| c.train.clone())["model"].clone();
     assert!(model("").get("pose_head").is_none() && model("").get("freeze_backbone").is_none());
     assert_eq!(model("[model]\npose_head = true\n")["pose_head"], true);
+    assert!(model("").get("object_attention").is_none());
+    // The authors' action quantisation is the default and in the key; the exact actions of earlier keys are not.
+    let train = |extra: &str| stage_inputs(extra, |c| c.train.clone())["train"].clone();
+    assert_eq!(train("")["action_resolution"], 128);
+    assert!(train("[train]\naction_resolution = 0\n").get("action_resolution").is_none());
+    assert_eq!(model("[model]\nobject_attention = true\n")["object_attention"], true);
     let world = |extra: &str| stage_inputs(extra, |c| c.collect_agent.clone())["world"].clone();
     assert!(world("").get("close_on_arrival").is_none());
     assert_eq!(world("[world]\nclose_on_arrival = true\n")["close_on_arrival"], true);

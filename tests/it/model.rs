@@ -47,6 +47,7 @@ fn a_future_agent_frame_does_not_change_earlier_outputs() {
     for registration in ARCHITECTURES {
         future_frames_stay_invisible(ModelConfig { architecture: Architecture::named(registration.name), ..tiny() });
     }
+    future_frames_stay_invisible(ModelConfig { object_attention: true, pose_head: true, ..tiny() });
 }
 
 fn future_frames_stay_invisible(model: ModelConfig) {
@@ -140,6 +141,33 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
         let model = ModelConfig { architecture: Architecture::named(name), pose_head: true, ..tiny() };
         let err = model.validate().unwrap_err().to_string();
         assert!(err.contains("model.pose_head") && err.contains(name), "{err}");
+    }
+}
+
+#[test]
+fn the_optional_object_attention_moves_with_the_context_and_fits_the_grasp_positions() {
+    let _rng = seeded(4);
+    let (vs, _) = build_policy(&tiny(), Device::Cpu).unwrap();
+    assert!(vs.variables().keys().all(|name| !name.contains("object_attention")));
+
+    let model = ModelConfig { object_attention: true, pose_head: true, ..tiny() };
+    let (vs, policy) = build_policy(&model, Device::Cpu).unwrap();
+    assert!(vs.variables().keys().any(|name| name.starts_with("object_attention.query")));
+    let (context, agent) = (images(2, 4), images(2, 7));
+    // The positions depend on the task embedding, so on the demonstration, even for the same agent frames.
+    let other = context.copy();
+    let _ = other.narrow(1, 0, 1).fill_(3.0);
+    let a = policy.forward_t(&context, &agent, false).poses.unwrap();
+    let b = policy.forward_t(&other, &agent, false).poses.unwrap();
+    assert!((a - b).abs().max().double_value(&[]) > 1e-5, "the context moves the pose through the attention");
+
+    let (first, last) = fitted(&vs, &policy, &batch(context, agent, [3, 12]), |l| l.pose);
+    assert!(last < 0.1 * first, "pose loss {first} -> {last}");
+
+    for name in ["contextual_lstm", "daml", "resnet"] {
+        let model = ModelConfig { architecture: Architecture::named(name), object_attention: true, ..tiny() };
+        let err = model.validate().unwrap_err().to_string();
+        assert!(err.contains("model.object_attention") && err.contains(name), "{err}");
     }
 }
 

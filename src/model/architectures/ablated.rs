@@ -21,6 +21,7 @@ pub const CONV: Registration = Registration {
     auxiliary_heads: true,
     pose_head: false,
     paper_heads: true,
+    spatial_tokens: false,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, false)),
 };
@@ -32,6 +33,7 @@ pub const CONV_LSTM: Registration = Registration {
     auxiliary_heads: true,
     pose_head: false,
     paper_heads: true,
+    spatial_tokens: false,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::SmallConv, true)),
 };
@@ -43,6 +45,7 @@ pub const RESNET: Registration = Registration {
     auxiliary_heads: true,
     pose_head: false,
     paper_heads: true,
+    spatial_tokens: false,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, false)),
 };
@@ -54,6 +57,7 @@ pub const RESNET_LSTM: Registration = Registration {
     auxiliary_heads: true,
     pose_head: false,
     paper_heads: true,
+    spatial_tokens: false,
     bf16: true,
     build: |vs, config| Box::new(AblatedPolicy::new(vs, config, Visual::ResNet, true)),
 };
@@ -176,7 +180,7 @@ impl AblatedPolicy {
             to_task: TwoLayer::new(&(vs / "to_task"), task_frames * features, features, latent),
             to_latent: TwoLayer::new(&(vs / "to_latent"), features, latent, latent),
             lstm: lstm.then(|| nn::lstm(vs / "lstm", latent, latent, rnn)),
-            heads: PolicyHeads::new(vs, latent, config),
+            heads: PolicyHeads::new(vs, latent, latent, config),
         }
     }
 

@@ -23,6 +23,7 @@ pub const DAML: Registration = Registration {
     auxiliary_heads: false,
     pose_head: true,
     paper_heads: false,
+    spatial_tokens: false,
     // Its inner gradient step carries bf16 rounding into the adapted weights: the outer gradient turns away from
     // fp32's (tests/it/precision.rs measured a cosine of 0.4).
     bf16: false,

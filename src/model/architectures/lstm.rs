@@ -21,6 +21,7 @@ pub const CONTEXTUAL_LSTM: Registration = Registration {
     auxiliary_heads: true,
     pose_head: false,
     paper_heads: false,
+    spatial_tokens: false,
     bf16: true,
     build: |vs, config| Box::new(ContextualLstm::new(vs, config)),
 };

@@ -22,6 +22,9 @@ pub struct Registration {
     pub pose_head: bool,
     /// Whether it ends in the paper's heads, to which `model.pose_head` and `model.task_head` can add.
     pub paper_heads: bool,
+    /// Whether it keeps each agent frame's spatial tokens after mixing, over which `model.object_attention`
+    /// attends.
+    pub spatial_tokens: bool,
     /// Whether it trains faithfully under bf16 autocast (`train.precision = "bf16"`).
     pub bf16: bool,
     pub build: fn(&nn::Path, &ModelConfig) -> Box<dyn PolicyNet>,

@@ -5,7 +5,7 @@ use crate::model::attention::{
     AttentionLayer, AttentionSpec, ConvBlock, conv3d_config, frame_causal_mask, positional_encoding,
 };
 use crate::model::config::{ContextAttention, ModelConfig, TaskPass};
-use crate::model::heads::{EmbeddingMlp, PolicyHeads, spatial_softmax};
+use crate::model::heads::{EmbeddingMlp, ObjectAttention, PolicyHeads, spatial_softmax};
 use crate::model::output::PolicyOutput;
 use crate::model::policy::PolicyNet;
 use crate::model::resnet::ResNet18;
@@ -19,6 +19,7 @@ pub const TRANSFORMER: Registration = Registration {
     auxiliary_heads: true,
     pose_head: false,
     paper_heads: true,
+    spatial_tokens: true,
     bf16: true,
     build: |vs, config| Box::new(TransformerPolicy::new(vs, config, Mixing::Attention)),
 };
@@ -30,6 +31,7 @@ pub const TEMPORAL_CONV: Registration = Registration {
     auxiliary_heads: true,
     pose_head: false,
     paper_heads: true,
+    spatial_tokens: true,
     // Under bf16 autocast on a CPU with AVX512-BF16 (AMD EPYC, 2026-12-02) its 5x5x5 convolution's gradient came
     // out at a cosine of 0.0 from fp32's (tests/it/precision.rs), at this commit and the one before: refused.
     bf16: false,
@@ -81,6 +83,8 @@ pub struct TransformerPolicy {
     task_conv: nn::Conv<[i64; 3]>,
     /// One MLP embeds agent frames and the task alike (the authors share it).
     embed: EmbeddingMlp,
+    /// `model.object_attention`: where the task's object is in each agent frame, beside its embedding.
+    object_attention: Option<ObjectAttention>,
     heads: PolicyHeads,
 }
 
@@ -99,6 +103,10 @@ impl TransformerPolicy {
         let causal =
             (0..config.attention_layers).map(|i| Mixer::new(&(vs / "attention" / i), mixing, spec, true)).collect();
         let (hidden, latent) = (config.embed_hidden, config.latent);
+        let object_attention = config.object_attention.then(|| {
+            ObjectAttention::new(&(vs / "object_attention"), latent, c, config.attention_heads, config.attention_inner)
+        });
+        let frame = latent + object_attention.as_ref().map_or(0, ObjectAttention::width);
         TransformerPolicy {
             trunk,
             dropout: config.dropout,
@@ -108,7 +116,8 @@ impl TransformerPolicy {
             task_attention: Mixer::new(&(vs / "task_attention"), mixing, spec, false),
             task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv3d_config([0, 0, 0])),
             embed: EmbeddingMlp::new(&(vs / "embed"), 2 * c, hidden, latent, config.dropout),
-            heads: PolicyHeads::new(vs, latent, config),
+            object_attention,
+            heads: PolicyHeads::new(vs, latent, frame, config),
         }
     }
 
@@ -138,7 +147,8 @@ impl PolicyNet for TransformerPolicy {
         let frames = x.view([b, t, h, w, c]).permute([0, 1, 4, 2, 3]);
 
         // Frame embeddings of the agent frames.
-        let agent_feats = frames.narrow(1, tc, ta).reshape([b * ta, c, h, w]);
+        let agent_frames = frames.narrow(1, tc, ta);
+        let agent_feats = agent_frames.reshape([b * ta, c, h, w]);
         let e = self.embed.forward_t(&spatial_softmax(&agent_feats), train).view([b, ta, -1]);
 
         // Task embedding from the context and the first agent frame; the temporal convolution is unpadded.
@@ -151,6 +161,10 @@ impl PolicyNet for TransformerPolicy {
         let pooled = task_frames.apply(&self.task_conv).mean_dim([2i64].as_slice(), false, tch::Kind::Float);
         let task = self.embed.forward_t(&spatial_softmax(&pooled), train);
 
+        let e = match &self.object_attention {
+            Some(attention) => Tensor::cat(&[e, attention.forward(&task, &agent_frames)], -1),
+            None => e,
+        };
         self.heads.forward(&task, &e)
     }
 }

@@ -39,16 +39,18 @@ fn identity(t: &TrainConfig) -> TrainConfig {
 }
 
 /// Settings added after train keys existed, left out of them at their earlier value.
-fn neutral() -> [(&'static str, Value); 8] {
+fn neutral() -> [(&'static str, Value); 10] {
     [
         ("model.freeze_backbone", json!(false)),
         ("model.pose_head", json!(false)),
         ("model.task_head", json!(false)),
+        ("model.object_attention", json!(false)),
         ("train.loss.pose", json!(1.0)),
         ("train.loss.task", json!(1.0)),
         ("train.augment_on", json!("host")),
         ("train.precision", json!("fp32")),
         ("train.window_start", json!(AUTHORS_WINDOW_START)),
+        ("train.action_resolution", json!(0)),
     ]
 }
 
