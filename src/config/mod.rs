@@ -387,7 +387,8 @@ mod tests {
         assert_eq!((p.steps, p.target, p.augmentation.as_ref()), (50, LocaliseTarget::Objects, None));
         assert_eq!(load(grid).unwrap().cells[0].config.pretrain, None, "absent: the authors' start");
         let err = |text: &str| format!("{:#}", load(text).unwrap_err());
-        let both = err(&format!("[pretrain]\n[model]\npretrained_backbone = \"Cargo.toml\"\n{grid}"));
+        let weights = concat!(env!("CARGO_MANIFEST_DIR"), "/Cargo.toml");
+        let both = err(&format!("[pretrain]\n[model]\npretrained_backbone = {weights:?}\n{grid}"));
         assert!(both.contains("[pretrain] and model.pretrained_backbone"), "{both}");
         let vgg = err(&format!(
             "[pretrain]\n[model]\narchitecture = \"daml\"\n[train.loss]\ninverse = 0.0\npoint = 0.0\n{grid}"

@@ -16,6 +16,15 @@ pub(super) fn reject_train_seed(table: &toml::Table, file: &str, what: &str, tex
     Ok(())
 }
 
+/// `path` as written in experiment file `file`: a relative path is read from the file's folder, so an experiment
+/// means the same weights from whatever folder it is run.
+fn beside(file: &str, path: &str) -> String {
+    match Path::new(file).parent().filter(|d| !d.as_os_str().is_empty() && Path::new(path).is_relative()) {
+        Some(dir) => dir.join(path).to_string_lossy().into_owned(),
+        None => path.to_string(),
+    }
+}
+
 /// Turns merged sections into a validated cell configuration.
 pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -> Result<CellConfig> {
     let mut config: CellConfig = toml::Value::Table(table.clone()).try_into().map_err(|e| {
@@ -38,6 +47,9 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
         bail!("{file}: in {what}: eval.tasks contains task {t}, which collect.tasks does not collect");
     }
     check(config.eval.check_policy(&config.model, &config.world))?;
+    if let Some(path) = config.model.pretrained_backbone.as_mut() {
+        *path = beside(file, path);
+    }
     if let Some(path) = config.model.pretrained_backbone.as_ref().filter(|p| !Path::new(p).is_file()) {
         bail!("{file}: in {what}: model.pretrained_backbone = {path:?}: no such file");
     }

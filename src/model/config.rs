@@ -87,7 +87,8 @@ pub struct ModelConfig {
     /// feature map twice as fine, for small frames).
     pub backbone_stages: usize,
     /// Optional safetensors file of torchvision ResNet-18 weights (names like `layer1.0.conv1.weight`; for DAML,
-    /// VGG-16's `features.0.*` and `features.2.*`).
+    /// VGG-16's `features.0.*` and `features.2.*`); a relative path is read from the experiment file's folder. Its
+    /// content, not its path, goes into the training's key.
     pub pretrained_backbone: Option<String>,
     /// Keeps the pretrained trunk's weights fixed during training (its BatchNorm statistics still follow the
     /// data). A departure: the authors fine-tune the whole network (false).

@@ -82,6 +82,22 @@ fn a_pretrained_trunk_file_keys_training_by_its_content_and_must_exist() {
     assert_ne!(first.0, changed.0, "new weights retrain");
     assert_ne!(first.1, changed.1, "and re-evaluate");
     assert_eq!(first.2, changed.2, "collections do not depend on them");
+
+    // A relative path is read from the experiment file's folder (not the working directory, the repository
+    // here), and where the weights lie does not enter the key: a copy elsewhere, named relatively, keys the same.
+    std::fs::write(&weights, b"one").unwrap();
+    let sub = dir.join("sub");
+    std::fs::create_dir_all(&sub).unwrap();
+    std::fs::write(sub.join("copy.safetensors"), b"one").unwrap();
+    let train_key = |file: &std::path::Path, path: &str| {
+        let text = format!(
+            "[world]\nimage = {{ height = 32, width = 40 }}\n[model]\npretrained_backbone = {path:?}\n[grid]\nsizes = [16]\n"
+        );
+        std::fs::write(file, text).unwrap();
+        plan(&Experiment::load(file, &Resolution::default()).unwrap()).cells[0].train.clone().unwrap()
+    };
+    assert_eq!(train_key(&dir.join("relative.toml"), "trunk.safetensors"), first.0);
+    assert_eq!(train_key(&sub.join("copy.toml"), "copy.safetensors"), first.0);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -474,7 +474,9 @@ fn a_byte_changed_in_any_artifact_is_caught_before_use_and_the_stage_recomputed(
     let recorded: String =
         conn.query_row("SELECT artifact FROM stages WHERE kind = 'train' LIMIT 1", [], |r| r.get(0)).unwrap();
     assert!(recorded.starts_with("artifacts/train/"), "{recorded}");
+    // A store of that time: old paths, and no schema version recorded (0).
     conn.execute("UPDATE stages SET artifact = 'elsewhere/runs/' || artifact WHERE kind = 'eval'", []).unwrap();
+    conn.pragma_update(None, "user_version", 0).unwrap();
     drop(conn);
     let moved = dir.join("moved");
     std::fs::rename(&store, &moved).unwrap();

@@ -77,9 +77,13 @@ pub fn add(
     if let Some(n) = per_task {
         inputs["per_task"] = n.into();
     }
-    // The weights file is an input by its content, not its name: replacing it retrains.
+    // The weights file is an input by its content, not its name or where it lies: replacing it retrains, moving
+    // it (or the experiment file that names it) does not.
     if let Some(path) = &cell.model.pretrained_backbone {
         inputs["pretrained_backbone_blake3"] = file_digest(Path::new(path)).into();
+        if let Some(model) = inputs["model"].as_object_mut() {
+            model.remove("pretrained_backbone");
+        }
     }
     let job = TrainJob {
         model: cell.model.clone(),
