@@ -109,6 +109,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         resolution: a.store.resolution(),
         args: a.slurm_args.clone(),
         gpu_args: a.slurm_gpu_args.clone(),
+        per_kind: experiment.slurm.clone(),
     });
     let opts = RunOptions {
         slurm,

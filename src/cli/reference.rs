@@ -3,6 +3,7 @@
 //! compares the files with what this prints.
 use super::config::inline;
 use anyhow::{Result, bail};
+use oneshot_lab::config::slurm::SlurmResources;
 use oneshot_lab::config::{Cell, CellConfig, Experiment, Grid, Resolution};
 use oneshot_lab::pipeline::stages::{Kind, plan};
 use oneshot_lab::train::pretrain::PretrainConfig;
@@ -82,6 +83,18 @@ pub fn config_page() -> Result<String> {
     out += "| key | type | default | description |\n| --- | --- | --- | --- |\n";
     let mut undocumented = Vec::new();
     for row in rows(&grid_schema, &grid_schema, &grid_defaults, "grid")? {
+        if row.description.is_empty() {
+            undocumented.push(row.key.clone());
+        }
+        out += &format!("| `{}` | {} | {} | {} |\n", row.key, row.ty, row.default, row.description);
+    }
+
+    let slurm_schema = serde_json::to_value(schemars::schema_for!(SlurmResources))?;
+    let slurm_defaults = serde_json::to_value(SlurmResources::default())?;
+    out += "\n## `[slurm.collect]`, `[slurm.pretrain]`, `[slurm.train]`, `[slurm.eval]`\n\nWhat each stage kind's \
+            jobs request under `run --slurm` (after `--slurm-arg` and `--slurm-gpu-arg`, which they override where both set an option); not part of any stage key.\n\n";
+    out += "| key | type | default | description |\n| --- | --- | --- | --- |\n";
+    for row in rows(&slurm_schema, &slurm_schema, &slurm_defaults, "slurm.KIND")? {
         if row.description.is_empty() {
             undocumented.push(row.key.clone());
         }
@@ -200,6 +213,7 @@ fn inputs_by_kind(config: &CellConfig) -> BTreeMap<Kind, Vec<String>> {
         grid: Grid::default(),
         base: config.clone(),
         cells: vec![cell],
+        slurm: Default::default(),
         resolution: Resolution::default(),
     };
     let mut out: BTreeMap<Kind, Vec<String>> = BTreeMap::new();

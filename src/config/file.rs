@@ -23,6 +23,8 @@ pub(super) struct FileShape {
     pub(super) grid: Grid,
     #[serde(default)]
     pub(super) variants: BTreeMap<String, toml::Table>,
+    #[serde(default)]
+    pub(super) slurm: super::slurm::SlurmSection,
     /// Already merged in (the chosen one) when the shape is read.
     #[serde(default, rename = "profiles")]
     pub(super) _profiles: Option<toml::Table>,

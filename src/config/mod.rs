@@ -21,6 +21,7 @@ pub use overrides::Override;
 mod file;
 pub mod overrides;
 mod rules;
+pub mod slurm;
 
 /// How an experiment file is resolved: an optional scale profile, then `--set` overrides, in that order.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -143,6 +144,8 @@ pub struct Experiment {
     pub grid: Grid,
     pub base: CellConfig,
     pub cells: Vec<Cell>,
+    /// What each stage kind's Slurm jobs request (`[slurm.KIND]`).
+    pub slurm: slurm::SlurmSection,
     /// The profile and overrides it was resolved with.
     pub resolution: Resolution,
 }
@@ -243,7 +246,9 @@ impl Experiment {
                 }
             }
         }
-        Ok(Experiment { name, description, grid, base, cells, resolution: resolution.clone() })
+        let slurm = shape.slurm.clone();
+        slurm.validate().with_context(|| format!("{file}: in {what}"))?;
+        Ok(Experiment { name, description, grid, base, cells, slurm, resolution: resolution.clone() })
     }
 }
 
@@ -377,6 +382,18 @@ mod tests {
         assert_eq!(e.cells.iter().map(|c| c.config.train.seed).collect::<Vec<_>>(), [4, 7]);
         let own = load("[collect]\ntasks = [0, 5]\n[eval]\ntasks = [5]\n[grid]\nsizes = [32]\n").unwrap();
         assert_eq!(own.cells[0].config.eval.tasks, [5]);
+    }
+
+    #[test]
+    fn slurm_sections_give_each_kind_its_resources_and_unknown_names_are_refused() {
+        let grid = "[grid]\nsizes = [16]\n";
+        let e = load(&format!("[slurm.train]\npartition = \"gpu\"\ncpus = 4\n{grid}")).unwrap();
+        assert_eq!((e.slurm.train.partition.as_deref(), e.slurm.train.cpus), (Some("gpu"), Some(4)));
+        assert_eq!(e.slurm.collect, Default::default());
+        let err = |text: &str| format!("{:#}", load(text).unwrap_err());
+        assert!(err(&format!("[slurm.trian]\ncpus = 4\n{grid}")).contains("trian"));
+        assert!(err(&format!("[slurm.train]\nwalltime = \"1:00:00\"\n{grid}")).contains("walltime"));
+        assert!(err(&format!("[slurm.eval]\ncpus = 0\n{grid}")).contains("slurm.eval.cpus"));
     }
 
     #[test]

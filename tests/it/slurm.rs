@@ -98,6 +98,16 @@ fn stages_run_as_slurm_jobs_and_failed_jobs_are_recorded() {
     assert!(text.contains("Slurm refused") && text.contains("nowhere"), "{text}");
     let failed: i64 = db.query_row("SELECT COUNT(*) FROM stages WHERE status = 'failed'", [], |r| r.get(0)).unwrap();
     assert_eq!(failed, 1);
+
+    // The file's `[slurm.eval]` resources reach the evaluation jobs' sbatch, and no stage key: the collections
+    // and the training stay cached.
+    std::fs::write(&file, format!("{EXPERIMENT}[slurm.eval]\npartition = \"elsewhere\"\ntime = \"00:05:00\"\n"))
+        .unwrap();
+    let per_kind = run(&["--slurm", "--force", "random/eval"]);
+    let text = String::from_utf8_lossy(&per_kind.stdout);
+    assert!(!per_kind.status.success() && text.contains("Slurm refused") && text.contains("elsewhere"), "{text}");
+    let plan = stdout(&oneshot("plan", Some(&file), &store, &[]));
+    assert!(plan.contains("1 stages to run"), "only the failed evaluation is left to run: {plan}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

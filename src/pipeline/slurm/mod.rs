@@ -28,6 +28,9 @@ pub struct SlurmOptions {
     pub args: Vec<String>,
     /// Extra `sbatch` arguments for jobs that run a network (e.g. `--gres=gpu:1`).
     pub gpu_args: Vec<String>,
+    /// The experiment file's `[slurm.KIND]` resources, given after the arguments above (so they win where both
+    /// set an option).
+    pub per_kind: crate::config::slurm::SlurmSection,
 }
 
 /// What a job leaves in its artifact folder: which job it was (so that a later attempt's job is never mistaken for

@@ -76,6 +76,9 @@ pub fn submit(
     if stage.job.needs_gpu() {
         cmd.args(&opts.gpu_args);
     }
+    if let Some(resources) = opts.per_kind.of(stage.kind().name()) {
+        cmd.args(resources.sbatch_args());
+    }
     let out = cmd.arg("--wrap").arg(&wrap).output().context("running sbatch (is Slurm installed and up?)")?;
     let stdout = String::from_utf8_lossy(&out.stdout);
     let job = stdout.lines().next().and_then(|l| l.split(';').next()).and_then(|id| id.trim().parse::<u64>().ok());
