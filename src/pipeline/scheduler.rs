@@ -108,6 +108,10 @@ impl Scheduler<'_> {
     /// held by another process.
     fn start_ready(&mut self) -> Result<bool> {
         let mut waiting_on_others = false;
+        if crate::train::stop::requested().is_some() {
+            // Asked to stop (a cluster's warning): the running stages wind down, no new one starts.
+            return Ok(false);
+        }
         for k in self.keys.clone() {
             if self.status[&k] != Status::Pending || self.running >= self.jobs {
                 continue;

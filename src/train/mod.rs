@@ -5,6 +5,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod curve;
 pub mod pretrain;
+pub mod stop;
 pub mod tensorboard;
 pub mod throughput;
 
@@ -185,6 +186,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let (mut vs, mut policy) = build_policy(model, device)?;
     policy.set_channels_last(config.memory_format == config::MemoryFormat::ChannelsLast);
     let mut opt = Adam::new(&vs, config.lr);
+    let _stop = stop::StopGuard::new();
     let resumed = checkpoint::latest(&ckpt_dir)?;
     let start = match &resumed {
         Some((step, path)) => {
@@ -255,10 +257,17 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
             curve::write(&curve_path, &curve)?;
             tensorboard::write(&run.out.join(tensorboard::EVENTS_FILE), &curve)?;
         }
-        if step % config.checkpoint_interval == 0 || step == config.steps {
+        let stop = stop::requested();
+        if step % config.checkpoint_interval == 0 || step == config.steps || stop.is_some() {
             let path = checkpoint::path_for(&ckpt_dir, step);
             opt.save(&checkpoint::optimizer_path(&path))?;
             checkpoint::save(&vs, &path)?;
+        }
+        if let Some(signal) = stop {
+            bail!(
+                "stopped by {signal} at step {step} of {}: checkpoint written, the next run resumes from it",
+                config.steps
+            );
         }
         bar.inc(1);
     }

@@ -166,6 +166,17 @@ fn wait_for_checkpoint(store: &Path) {
     }
 }
 
+/// The latest checkpoint step of the training in the store's staging folder (0: none).
+fn latest_checkpoint(store: &Path) -> u64 {
+    std::fs::read_dir(store.join("artifacts/.staging"))
+        .into_iter()
+        .flatten()
+        .filter_map(|e| oneshot_lab::train::checkpoint::latest(&e.unwrap().path().join("checkpoints")).ok().flatten())
+        .map(|(step, _)| step)
+        .max()
+        .unwrap_or(0)
+}
+
 /// Every evaluation episode and collection metric of a store, keyed by stage, for comparing two stores.
 fn results(store: &Path) -> Vec<String> {
     let db = Connection::open(store.join("oneshot.sqlite")).unwrap();
@@ -217,9 +228,40 @@ fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_ru
     assert!(text.contains("a job it depended on failed"), "{text}");
 
     // The next detached run resubmits exactly those two (training resumes from its checkpoint).
+    let before = latest_checkpoint(&store);
+    let text = detach(&[]);
+    assert!(text.contains("2 Slurm jobs submitted"), "{text}");
+
+    // The cluster's warning before preemption or the time limit (here sent by hand, once the resubmitted training
+    // has written a checkpoint of its own, so it is under way): the training writes a checkpoint at the step it is
+    // at and its job ends; the next submission resumes from that step.
+    let start = Instant::now();
+    while latest_checkpoint(&store) <= before {
+        assert!(start.elapsed() < HANG_GUARD, "the resubmitted training never checkpointed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let job = job_of(&store, "train");
+    let warned = Command::new("scancel").args(["--full", "--signal=USR1", &job]).status().unwrap();
+    assert!(warned.success());
+    let start = Instant::now();
+    let text = loop {
+        let (text, _, failed) = caught_up(&store);
+        if failed == 2 {
+            break text;
+        }
+        assert!(start.elapsed() < HANG_GUARD, "{failed} stages failed after {HANG_GUARD:?}: {text}");
+        std::thread::sleep(Duration::from_secs(2));
+    };
+    assert!(text.contains("stopped by SIGUSR1 at step"), "{text}");
     let text = detach(&[]);
     assert!(text.contains("2 Slurm jobs submitted"), "{text}");
     wait_until_done(&store, 5);
+    let db = Connection::open(store.join("oneshot.sqlite")).unwrap();
+    let train: String = db.query_row("SELECT artifact FROM stages WHERE kind = 'train'", [], |r| r.get(0)).unwrap();
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(store.join(train).join(oneshot_lab::train::FINAL_INFO)).unwrap())
+            .unwrap();
+    assert!(info["resumed_from"].as_u64().is_some_and(|s| s > 0), "{info}");
 
     // `cancel` stops an experiment's queued jobs and fails their stages; a detached run resubmits them.
     let text = detach(&["--force", "random/eval", "--slurm-arg=--begin=now+1hour"]);

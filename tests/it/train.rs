@@ -2,7 +2,7 @@
 //! checked against the data.
 use crate::helpers::torch_rng;
 use oneshot_lab::data::collect::collect;
-use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
+use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSharing};
 use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
 use oneshot_lab::eval::probe::{PositionErrors, open_loop};
 use oneshot_lab::model::architectures::ARCHITECTURES;
@@ -140,4 +140,53 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     let err = train(&too_long, &config, &TrainRun { out: &dir.join("other"), ..run }).unwrap_err();
     assert!(err.to_string().contains("model.context_frames = 500"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_training_told_to_stop_by_signal_checkpoints_and_the_next_run_resumes_there() {
+    let dir = crate::helpers::scratch("train-signal");
+    let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
+    for robot in Robot::ALL {
+        // Each slot a layout of its own, so that validation (held out by layout) has some.
+        let settings = CollectSettings { layouts: LayoutSharing::Unique, ..tasks(&[0, 6]) };
+        let config = CollectConfig { per_task: 3, world: world.clone(), settings, ..CollectConfig::paper(robot) };
+        collect(&config, &dir.join(robot.name()), 2, false).unwrap();
+    }
+    let config = dir.join("tiny.toml");
+    std::fs::write(
+        &config,
+        "[model]\nbackbone_width = 8\nattention_inner = 16\nembed_hidden = 32\n\
+         [train]\nbatch_size = 2\ndevice = \"cpu\"\nval_interval = 1000000\nval_batches = 1\ncheckpoint_interval = 1000000\n",
+    )
+    .unwrap();
+    let out = dir.join("model");
+    let train = |steps: &str| {
+        let mut cmd = crate::helpers::oneshot();
+        cmd.args(["train", "--config", config.to_str().unwrap(), "--steps", steps, "--out", out.to_str().unwrap()]);
+        cmd.args(["--demos", dir.join("sawyer").to_str().unwrap(), "--agents", dir.join("panda").to_str().unwrap()]);
+        cmd.env("OMP_NUM_THREADS", "1");
+        cmd
+    };
+    // A long training, told to stop once it is under way (its first curve point is written at step 0).
+    let child = train("1000000").stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let started = std::time::Instant::now();
+    while !out.join("curve.jsonl").exists() && started.elapsed().as_secs() < 120 {
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    unsafe { libc::kill(child.id() as i32, libc::SIGUSR1) };
+    let stopped = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&stopped.stderr);
+    assert!(!stopped.status.success() && err.contains("stopped by SIGUSR1 at step"), "{err}");
+    let (step, _) = oneshot_lab::train::checkpoint::latest(&out.join("checkpoints")).unwrap().expect("a checkpoint");
+    assert!(step > 0 && err.contains(&format!("at step {step} ")), "checkpoint at step {step}: {err}");
+    assert!(!out.join("model.safetensors").exists(), "a stopped training is not a finished one");
+
+    // The next run resumes from that checkpoint and finishes.
+    let resumed = train(&(step + 3).to_string()).output().unwrap();
+    assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join(oneshot_lab::train::FINAL_INFO)).unwrap()).unwrap();
+    assert_eq!(info["resumed_from"], serde_json::json!(step));
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -61,7 +61,9 @@ pub fn submit(
     for o in &opts.resolution.overrides {
         inner.extend(["--set".into(), o.to_string()]);
     }
-    let wrap = inner.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" ");
+    // `exec`: the job's shell becomes this binary, so the signals Slurm sends before preemption or the time
+    // limit reach the training itself rather than a shell that would die of them first.
+    let wrap = format!("exec {}", inner.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" "));
     let mut cmd = Command::new("sbatch");
     cmd.args(["--parsable", "--job-name"]).arg(format!("oneshot-{name}"));
     cmd.arg("--output").arg(logs.join(format!("{name}-%j.log")));
