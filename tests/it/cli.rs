@@ -227,10 +227,8 @@ fn a_bad_override_fails_like_a_bad_file_naming_the_key() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-#[test]
-fn overrides_change_the_keys_they_touch_and_are_recorded_with_the_experiment() {
-    let dir = scratch("cli-set-run");
-    let store = dir.join("store");
+/// Writes `refs.toml` in `dir`: the random policy alone, two short episodes at 32x40 (seconds to run).
+fn refs_experiment(dir: &std::path::Path) -> std::path::PathBuf {
     let file = dir.join("refs.toml");
     std::fs::write(
         &file,
@@ -238,6 +236,14 @@ fn overrides_change_the_keys_they_touch_and_are_recorded_with_the_experiment() {
          [grid]\nsizes = []\nreferences = [\"random\"]\n",
     )
     .unwrap();
+    file
+}
+
+#[test]
+fn overrides_change_the_keys_they_touch_and_are_recorded_with_the_experiment() {
+    let dir = scratch("cli-set-run");
+    let store = dir.join("store");
+    let file = refs_experiment(&dir);
     let run = |extra: &[&str]| {
         let mut args = vec!["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1"];
         args.extend(extra);
@@ -411,13 +417,7 @@ fn snapshot(dir: &std::path::Path) -> std::collections::BTreeMap<std::path::Path
 fn a_store_opened_read_only_serves_every_reading_command_without_changing_a_byte() {
     let dir = scratch("cli-store-read-only");
     let store = dir.join("store");
-    let file = dir.join("refs.toml");
-    std::fs::write(
-        &file,
-        "name = \"refs\"\n[world.image]\nheight = 32\nwidth = 40\n[eval]\nepisodes = 2\nhorizon = 3\nbatch = 2\n\
-         [grid]\nsizes = []\nreferences = [\"random\"]\n",
-    )
-    .unwrap();
+    let file = refs_experiment(&dir);
     let (file, store_arg) = (file.to_str().unwrap(), store.to_str().unwrap());
     let out = oneshot().args(["run", file, "--store", store_arg, "--workers", "1"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));

@@ -138,6 +138,19 @@ fn wait_until_done(store: &Path, done: i64) -> String {
     }
 }
 
+/// Calls `status` until `failed` stages have failed; returns its text.
+fn wait_until_failed(store: &Path, failed: i64) -> String {
+    let start = Instant::now();
+    loop {
+        let (text, _, n) = caught_up(store);
+        if n == failed {
+            return text;
+        }
+        assert!(start.elapsed() < HANG_GUARD, "{n} stages failed after {HANG_GUARD:?}: {text}");
+        std::thread::sleep(Duration::from_secs(2));
+    }
+}
+
 /// The Slurm job holding the running stage of `kind`.
 fn job_of(store: &Path, kind: &str) -> String {
     let db = Connection::open(store.join("oneshot.sqlite")).unwrap();
@@ -215,15 +228,7 @@ fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_ru
     // Slurm kills the running training job: its stage fails, and the evaluation waiting on it is cancelled.
     wait_for_checkpoint(&store);
     assert!(Command::new("scancel").arg(job_of(&store, "train")).status().unwrap().success());
-    let start = Instant::now();
-    let text = loop {
-        let (text, _, failed) = caught_up(&store);
-        if failed == 2 {
-            break text;
-        }
-        assert!(start.elapsed() < HANG_GUARD, "{failed} stages failed after {HANG_GUARD:?}: {text}");
-        std::thread::sleep(Duration::from_secs(2));
-    };
+    let text = wait_until_failed(&store, 2);
     assert!(text.contains("ended CANCELLED without results"), "{text}");
     assert!(text.contains("a job it depended on failed"), "{text}");
 
@@ -243,15 +248,7 @@ fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_ru
     let job = job_of(&store, "train");
     let warned = Command::new("scancel").args(["--full", "--signal=USR1", &job]).status().unwrap();
     assert!(warned.success());
-    let start = Instant::now();
-    let text = loop {
-        let (text, _, failed) = caught_up(&store);
-        if failed == 2 {
-            break text;
-        }
-        assert!(start.elapsed() < HANG_GUARD, "{failed} stages failed after {HANG_GUARD:?}: {text}");
-        std::thread::sleep(Duration::from_secs(2));
-    };
+    let text = wait_until_failed(&store, 2);
     assert!(text.contains("stopped by SIGUSR1 at step"), "{text}");
     let text = detach(&[]);
     assert!(text.contains("2 Slurm jobs submitted"), "{text}");
