@@ -2,11 +2,13 @@
 use super::options::{OutputFormat, ReadStoreDir, StoreArgs};
 use anyhow::{Result, bail};
 use oneshot_lab::config::Experiment;
+use oneshot_lab::pipeline::code;
 use oneshot_lab::pipeline::executor::staging_dir;
 use oneshot_lab::pipeline::gc::{folder_size, remove_artifacts, unused_artifacts};
 use oneshot_lab::pipeline::graph::short;
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::slurm::detached;
+use oneshot_lab::pipeline::stages::Kind;
 use oneshot_lab::pipeline::store::jobs::SLURM_HOST;
 use oneshot_lab::pipeline::store::read::StageRecord;
 use oneshot_lab::pipeline::store::{DATABASE, Store, alive, host, now};
@@ -141,6 +143,11 @@ pub fn why(a: WhyArgs) -> Result<()> {
             "kind": stage.kind,
             "key": stage.key,
             "status": stage.status,
+            "built_by": store.built_by(&stage.key)?.map(|c| serde_json::json!({
+                "commit": c.commit,
+                "digest": c.digest,
+                "same_code_as_this_binary": Kind::named(&stage.kind).map(|k| code::current(k).digest == c.digest),
+            })),
             "nearest_cached": nearest.as_ref().map(|(d, o)| serde_json::json!({
                 "key": o.key,
                 "differences": d.iter().map(|d| serde_json::json!({ "input": d.input, "cached": d.b, "this": d.a }))
@@ -152,7 +159,10 @@ pub fn why(a: WhyArgs) -> Result<()> {
     }
     println!("{} stage {} is {}", stage.kind, stage.key, stage.status);
     match (stage.status.as_str(), nearest) {
-        ("done", _) => println!("it is cached; a run reuses it"),
+        ("done", _) => {
+            println!("it is cached; a run reuses it");
+            println!("{}", built_by(&store, &stage)?);
+        }
         (_, None) => println!("no {} stage is cached yet, so every input is new", stage.kind),
         (_, Some((d, o))) if d.is_empty() => {
             println!("same inputs as cached stage {} but a different implementation version", short(&o.key))
@@ -165,6 +175,27 @@ pub fn why(a: WhyArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Which code built finished stage `stage`, against this binary's.
+fn built_by(store: &Store, stage: &StageRecord) -> Result<String> {
+    let Some(kind) = Kind::named(&stage.kind) else { return Ok(format!("its kind `{}` is unknown", stage.kind)) };
+    let now = code::current(kind);
+    Ok(match store.built_by(&stage.key)? {
+        None => "built before oneshot-lab recorded which code builds a stage".into(),
+        Some(built) if built.digest == now.digest => {
+            format!("built from commit {} by the same {} code as this binary's", built.commit, stage.kind)
+        }
+        Some(built) => format!(
+            "built from commit {} by other code: the source of the {kind} stage's modules changed since (digest {} \
+             then, {} in this binary, commit {}); `run FILE --rerun-code-changed {kind}` re-runs it",
+            built.commit,
+            built.digest,
+            now.digest,
+            now.commit,
+            kind = stage.kind
+        ),
+    })
 }
 
 /// The one stage whose key starts with `prefix`.

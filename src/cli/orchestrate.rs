@@ -14,6 +14,7 @@ use oneshot_lab::pipeline::slurm::{SlurmOptions, detached, run_stage as run_one_
 use oneshot_lab::pipeline::stages::{self, collection_totals};
 use oneshot_lab::pipeline::store::read::ExperimentRecord;
 use oneshot_lab::pipeline::store::{StageState, Store};
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 
 /// Arguments of the `run` command.
@@ -35,6 +36,10 @@ pub struct RunArgs {
     /// Re-run matching stages and everything below them.
     #[arg(long)]
     pub force: Option<String>,
+    /// Re-run the cached stages of these kinds (collect, pretrain, train, eval; comma-separated) that other code
+    /// built (their kind's source changed since: see `plan` and `why`), and everything below them.
+    #[arg(long, value_delimiter = ',', value_parser = ["collect", "pretrain", "train", "eval"])]
+    pub rerun_code_changed: Vec<String>,
     /// Show what would run.
     #[arg(long)]
     pub dry_run: bool,
@@ -116,6 +121,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         jobs: a.jobs,
         only: a.only.as_deref().map(Pattern::new).transpose().context("--only")?,
         force: a.force.as_deref().map(Pattern::new).transpose().context("--force")?,
+        rerun_code_changed: a.rerun_code_changed.iter().filter_map(|k| stages::Kind::named(k)).collect(),
         dry_run: a.dry_run,
         gpus: a.gpus.iter().map(|g| format!("cuda:{g}")).collect(),
         workers: a.workers.unwrap_or_else(default_workers),
@@ -237,6 +243,9 @@ struct PlannedStage {
     /// The training step of a checkpoint's evaluation.
     #[serde(skip_serializing_if = "Option::is_none")]
     step: Option<u64>,
+    /// For a cached stage that code other than this binary's built: the commit it was built from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    built_by_other_code: Option<String>,
 }
 
 /// Prints the grid as cells x stages with their state and an estimate of the time left.
@@ -246,11 +255,11 @@ pub fn plan(a: PlanArgs) -> Result<()> {
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     // A stage is cached only with an intact artifact (a damaged one is marked failed, as `run` would).
     let mut stage = |kind: &'static str, key: &str, step: Option<u64>| -> Result<PlannedStage> {
-        let state = match integrity::cached(&mut store, key)? {
-            Some(Ok(_)) => "cached",
-            _ => state_word(&store.state(key)?),
+        let (state, other) = match integrity::cached(&mut store, key)? {
+            Some(Ok(_)) => ("cached", store.built_by_other_code(key, plan.stages[key].kind())?.map(|c| c.commit)),
+            _ => (state_word(&store.state(key)?), None),
         };
-        Ok(PlannedStage { kind, key: key.to_string(), state, step })
+        Ok(PlannedStage { kind, key: key.to_string(), state, step, built_by_other_code: other })
     };
     let mut cells = Vec::new();
     for c in &plan.cells {
@@ -320,7 +329,10 @@ pub fn plan(a: PlanArgs) -> Result<()> {
     let width = cells.iter().map(|(name, _)| name.len()).max().unwrap_or(0).max(28);
     println!("{:<width$} {:<20} {:<20} {:<20} {:<20} eval", "cell", columns[0], columns[1], columns[2], columns[3]);
     for (name, stages) in &cells {
-        let shown = |s: &PlannedStage| format!("{} {}", s.state, short(&s.key));
+        let shown = |s: &PlannedStage| {
+            let mark = if s.built_by_other_code.is_some() { "*" } else { "" };
+            format!("{}{mark} {}", s.state, short(&s.key))
+        };
         let column = |kind: &str| stages.iter().find(|s| s.kind == kind).map_or("-".to_string(), shown);
         let evals: Vec<String> = stages.iter().filter(|s| s.kind == "eval").map(shown).collect();
         println!(
@@ -330,6 +342,24 @@ pub fn plan(a: PlanArgs) -> Result<()> {
             column(columns[2]),
             column(columns[3]),
             evals.join(", ")
+        );
+    }
+    let mut other: Vec<(&str, &str)> = cells
+        .iter()
+        .flat_map(|(_, stages)| stages.iter())
+        .filter_map(|s| Some((plan.stages[&s.key].kind().name(), s.built_by_other_code.as_deref()?)))
+        .collect();
+    other.sort();
+    other.dedup();
+    if !other.is_empty() {
+        let mut kinds: Vec<&str> = other.iter().map(|(kind, _)| *kind).collect();
+        kinds.dedup();
+        let commits: BTreeSet<&str> = other.iter().map(|(_, commit)| *commit).collect();
+        println!(
+            "cached* : built by other code (commit {}; the source of its kind changed since): \
+             `run --rerun-code-changed {}` re-runs them",
+            commits.into_iter().collect::<Vec<_>>().join(", "),
+            kinds.join(",")
         );
     }
     print!("{todo} stages to run");

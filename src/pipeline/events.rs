@@ -35,6 +35,11 @@ pub enum RunEvent {
         key: String,
         why: String,
     },
+    /// `--rerun-code-changed`: how many stages (of `kinds`, with those below them) it re-runs.
+    CodeChanged {
+        kinds: String,
+        stages: usize,
+    },
     /// Something went wrong that does not stop the run.
     Warning(String),
 }
@@ -68,6 +73,13 @@ impl fmt::Display for RunEvent {
                 }
             }
             RunEvent::SlurmJobFailed { key, why } => write!(f, "Slurm job of stage {} failed: {why}", short(key)),
+            RunEvent::CodeChanged { kinds, stages: 0 } => {
+                write!(f, "--rerun-code-changed {kinds}: no cached stage of this plan was built by other code")
+            }
+            RunEvent::CodeChanged { kinds, stages } => write!(
+                f,
+                "--rerun-code-changed {kinds}: {stages} stages re-run (built by other code, or below one that was)"
+            ),
             RunEvent::Warning(message) => write!(f, "warning: {message}"),
         }
     }

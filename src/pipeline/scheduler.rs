@@ -3,9 +3,9 @@
 use super::events::{RunEvent, RunEvents};
 use super::executor::{Executor, Local};
 use super::graph::{Plan, short};
-use super::selection::{Labels, Pattern, display_name, forced, selected};
+use super::selection::{Labels, Pattern, built_by_other_code, display_name, forced, selected};
 use super::slurm::{Slurm, SlurmOptions, detached};
-use super::stages::StageOutputs;
+use super::stages::{Kind, StageOutputs};
 use super::store::{Claim, Store};
 use anyhow::Result;
 use std::collections::{HashMap, HashSet};
@@ -23,6 +23,8 @@ pub struct RunOptions {
     pub only: Option<Pattern>,
     /// Re-run matching stages (and everything below them) even if cached.
     pub force: Option<Pattern>,
+    /// Re-run cached stages of these kinds that code other than this binary's built (and everything below them).
+    pub rerun_code_changed: Vec<Kind>,
     pub dry_run: bool,
     /// CUDA devices handed out one per network stage (`cuda:0`, ...); empty: the configuration decides.
     pub gpus: Vec<String>,
@@ -227,7 +229,13 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions, events: &dyn RunEvents) 
     let mut store = Store::open(root)?;
     let labels = plan.labels();
     let keys = selected(plan, opts.only.as_ref(), &labels)?;
-    let forced = forced(plan, &keys, opts.force.as_ref(), &labels)?;
+    let mut forced = forced(plan, &keys, opts.force.as_ref(), &labels)?;
+    if !opts.rerun_code_changed.is_empty() {
+        let changed = built_by_other_code(plan, &keys, &opts.rerun_code_changed, &store)?;
+        let kinds: Vec<&str> = opts.rerun_code_changed.iter().map(|k| k.name()).collect();
+        events.report(RunEvent::CodeChanged { kinds: kinds.join(","), stages: changed.len() });
+        forced.extend(changed);
+    }
     store.register(&keys.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
     if let (Some(slurm), true, false) = (&opts.slurm, opts.detach, opts.dry_run) {
         let s = detached::submit(plan, &mut store, root, slurm, opts.workers.max(1), &keys, &forced)?;

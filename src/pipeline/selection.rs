@@ -1,6 +1,9 @@
 //! Which stages of a plan a run considers: `--only` (the matching cells' stages and all they depend on) and
-//! `--force` (the matching stages and all below them), by glob patterns over the stages' `cell/kind` labels.
+//! `--force` (the matching stages and all below them), by glob patterns over the stages' `cell/kind` labels, and
+//! `--rerun-code-changed` (cached stages of the named kinds that other code built, and all below them).
 use super::graph::{Plan, Stage, short};
+use super::stages::Kind;
+use super::store::Store;
 use anyhow::{Context, Result, bail};
 use globset::{Glob, GlobMatcher};
 use std::collections::{BTreeMap, HashSet};
@@ -69,6 +72,19 @@ pub fn forced(plan: &Plan, keys: &[String], force: Option<&Pattern>, labels: &La
     let Some(p) = force else { return Ok(HashSet::new()) };
     check_matches("--force", p, keys, labels)?;
     Ok(keys.iter().filter(|k| labelled(labels, k, p)).flat_map(|k| plan.downstream(k)).collect())
+}
+
+/// The cached stages among `keys` of the `kinds` that code other than this binary's built, and everything below
+/// them: what `--rerun-code-changed` re-runs.
+pub fn built_by_other_code(plan: &Plan, keys: &[String], kinds: &[Kind], store: &Store) -> Result<HashSet<String>> {
+    let mut rerun = HashSet::new();
+    for k in keys {
+        let kind = plan.stages[k].kind();
+        if kinds.contains(&kind) && store.built_by_other_code(k, kind)?.is_some() {
+            rerun.extend(plan.downstream(k));
+        }
+    }
+    Ok(rerun)
 }
 
 #[cfg(test)]

@@ -478,5 +478,78 @@ fn a_store_newer_than_the_binary_is_refused_and_an_older_one_is_migrated() {
     let out = oneshot().args(["status", "--store", store_arg]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(version(), oneshot_lab::pipeline::store::SCHEMA_VERSION);
+
+    // A version-1 store has no record of the code that ran each attempt: migrating adds it.
+    let columns = || {
+        let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+        let mut stmt = conn.prepare("SELECT name FROM pragma_table_info('attempts')").unwrap();
+        stmt.query_map([], |r| r.get::<_, String>(0)).unwrap().collect::<Result<Vec<_>, _>>().unwrap()
+    };
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    conn.execute_batch("ALTER TABLE attempts DROP COLUMN code_commit; ALTER TABLE attempts DROP COLUMN code_digest")
+        .unwrap();
+    drop(conn);
+    set_version(1);
+    assert!(!columns().contains(&"code_digest".to_string()));
+    let out = oneshot().args(["status", "--store", store_arg]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(version(), oneshot_lab::pipeline::store::SCHEMA_VERSION);
+    assert!(columns().contains(&"code_digest".to_string()) && columns().contains(&"code_commit".to_string()));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_cached_stage_built_by_other_code_is_named_by_plan_and_why_and_rerun_on_request() {
+    use oneshot_lab::pipeline::code;
+    use oneshot_lab::pipeline::stages::Kind;
+    let dir = scratch("cli-code-changed");
+    let store = dir.join("store");
+    let file = refs_experiment(&dir);
+    let (file, store_arg) = (file.to_str().unwrap(), store.to_str().unwrap());
+    let run = |extra: &[&str]| {
+        let out = oneshot().args(["run", file, "--store", store_arg, "--workers", "1"]).args(extra).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let text = |args: &[&str]| {
+        let out = oneshot().args(args).args(["--store", store_arg]).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let recorded = || {
+        let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+        conn.query_row(
+            "SELECT stage_key, code_commit, code_digest FROM attempts WHERE status = 'done' ORDER BY id DESC LIMIT 1",
+            [],
+            |r| Ok((r.get::<_, String>(0)?, r.get::<_, String>(1)?, r.get::<_, String>(2)?)),
+        )
+        .unwrap()
+    };
+    run(&[]);
+    let (key, commit, digest) = recorded();
+    assert_eq!((commit.as_str(), digest.clone()), (code::COMMIT, code::current(Kind::Eval).digest));
+    assert!(!text(&["plan", file]).contains("cached*"));
+    assert!(text(&["why", &key[..10]]).contains("by the same eval code"));
+
+    // As if an older binary, with other evaluation code, had built it.
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    conn.execute("UPDATE attempts SET code_commit = 'abc1234', code_digest = 'older'", []).unwrap();
+    drop(conn);
+    let plan = text(&["plan", file]);
+    assert!(plan.contains(&format!("cached* {}", &key[..12])), "{plan}");
+    assert!(plan.contains("abc1234") && plan.contains("--rerun-code-changed eval"), "{plan}");
+    let why = text(&["why", &key[..10]]);
+    assert!(why.contains("abc1234") && why.contains("by other code"), "{why}");
+
+    // Only the named kinds re-run; the re-run records this binary's code.
+    let (out, err) = run(&["--rerun-code-changed", "collect,train"]);
+    assert!(out.contains("0 stages run, 1 cached") && err.contains("no cached stage"), "{out}{err}");
+    let (out, _) = run(&["--rerun-code-changed", "eval"]);
+    assert!(out.contains("1 stages run"), "{out}");
+    assert_eq!(recorded().2, digest);
+    assert!(!text(&["plan", file]).contains("cached*"));
+
+    let out = oneshot().args(["run", file, "--store", store_arg, "--rerun-code-changed", "evals"]).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("evals"));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -61,6 +61,21 @@ impl Kind {
         }
     }
 
+    /// The source files (prefixes of paths under `src/`) whose code decides this kind's results: their digest is
+    /// recorded with every attempt (`pipeline::code`). A kind that comes to use another module lists it here.
+    pub fn sources(self) -> &'static [&'static str] {
+        match self {
+            Kind::Collect => &["pipeline/stages/collect.rs", "sim/", "data/", "seeds.rs", "fsio.rs"],
+            Kind::Pretrain => &["pipeline/stages/pretrain.rs", "train/", "model/", "data/", "seeds.rs", "device.rs"],
+            Kind::Train => {
+                &["pipeline/stages/train.rs", "train/", "model/", "data/", "seeds.rs", "device.rs", "autocast.rs"]
+            }
+            Kind::Eval => {
+                &["pipeline/stages/eval.rs", "eval/", "sim/", "model/", "data/", "seeds.rs", "device.rs", "autocast.rs"]
+            }
+        }
+    }
+
     /// Whether an interrupted attempt's staging folder is kept for the next one (training resumes from its
     /// checkpoints); otherwise it is cleared.
     pub fn resumes(self) -> bool {
@@ -73,7 +88,7 @@ impl Kind {
 pub enum Job {
     Collect(collect::CollectJob),
     Pretrain(pretrain::PretrainJob),
-    Train(train::TrainJob),
+    Train(Box<train::TrainJob>),
     Eval(eval::EvalJob),
 }
 

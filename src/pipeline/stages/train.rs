@@ -39,12 +39,13 @@ fn identity(t: &TrainConfig) -> TrainConfig {
 }
 
 /// Settings added after train keys existed, left out of them at their earlier value.
-fn neutral() -> [(&'static str, Value); 10] {
+fn neutral() -> [(&'static str, Value); 11] {
     [
         ("model.freeze_backbone", json!(false)),
         ("model.pose_head", json!(false)),
         ("model.task_head", json!(false)),
         ("model.object_attention", json!(false)),
+        ("model.object_attention_input", json!("mixed")),
         ("train.loss.pose", json!(1.0)),
         ("train.loss.task", json!(1.0)),
         ("train.augment_on", json!("host")),
@@ -94,7 +95,7 @@ pub fn add(
         trunk: trunk.map(str::to_string),
     };
     let upstream = [demos, agents].into_iter().chain(trunk).map(str::to_string).collect();
-    plan.add(inputs, upstream, super::Job::Train(job))
+    plan.add(inputs, upstream, super::Job::Train(Box::new(job)))
 }
 
 /// The blake3 digest of a file's bytes in hex (`unreadable` when it cannot be read: configuration checks refuse a

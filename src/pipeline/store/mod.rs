@@ -4,8 +4,9 @@
 //! - `stages(key, kind, version, inputs, upstream, status, artifact, created_at, finished_at, seconds)`:
 //!   one row per stage ever planned; `status` is `planned`, `running`, `done` or `failed`; `inputs` is the resolved
 //!   configuration (JSON) that went into the key, `upstream` a JSON array of upstream keys.
-//! - `attempts(id, stage_key, status, host, pid, started_at, finished_at, error)`: every execution of a stage;
-//!   a detached Slurm job's attempt has `host = 'slurm'` and its job id as `pid`.
+//! - `attempts(id, stage_key, status, host, pid, started_at, finished_at, error, code_commit, code_digest)`: every
+//!   execution of a stage; a detached Slurm job's attempt has `host = 'slurm'` and its job id as `pid`;
+//!   `code_commit` and `code_digest` say which code ran it (`pipeline::code`; empty before version 2).
 //! - `experiments(name, file, description, profile, updated_at, overrides)` and
 //!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`;
 //!   `checkpoint_evals(experiment, cell, step, eval_key)`: a cell's evaluations of intermediate checkpoints.
@@ -18,8 +19,9 @@
 pub mod jobs;
 pub mod read;
 
+use super::code::{self, CodeVersion};
 use super::graph::{PlannedCell, Stage};
-use super::stages::StageOutputs;
+use super::stages::{Kind, StageOutputs};
 use anyhow::{Context, Result, bail};
 use read::ExperimentRecord;
 use rusqlite::{Connection, OptionalExtension, TransactionBehavior, params};
@@ -32,7 +34,7 @@ pub const DATABASE: &str = "oneshot.sqlite";
 /// Version of the database layout this binary reads and writes (SQLite's `user_version`). Stores from before it
 /// was recorded read 0 and are migrated on their first writable opening ([`migrate`]); a store newer than the
 /// binary is refused rather than misread.
-pub const SCHEMA_VERSION: i64 = 1;
+pub const SCHEMA_VERSION: i64 = 2;
 
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS stages (
@@ -41,7 +43,8 @@ CREATE TABLE IF NOT EXISTS stages (
     created_at REAL NOT NULL, finished_at REAL, seconds REAL);
 CREATE TABLE IF NOT EXISTS attempts (
     id INTEGER PRIMARY KEY, stage_key TEXT NOT NULL REFERENCES stages(key), status TEXT NOT NULL,
-    host TEXT NOT NULL, pid INTEGER NOT NULL, started_at REAL NOT NULL, finished_at REAL, error TEXT);
+    host TEXT NOT NULL, pid INTEGER NOT NULL, started_at REAL NOT NULL, finished_at REAL, error TEXT,
+    code_commit TEXT, code_digest TEXT);
 CREATE TABLE IF NOT EXISTS experiments (
     name TEXT PRIMARY KEY, file TEXT NOT NULL, description TEXT NOT NULL, profile TEXT, updated_at REAL NOT NULL,
     overrides TEXT NOT NULL DEFAULT '');
@@ -94,15 +97,25 @@ fn migrate(conn: &mut Connection, path: &Path) -> Result<()> {
         tx.execute_batch(SCHEMA).with_context(|| format!("creating the schema in {}", path.display()))?;
         // Version 0 -> 1: artifact paths relative to the store, and the experiments' `--set` overrides.
         relative_artifact_paths(&tx).with_context(|| format!("updating artifact paths in {}", path.display()))?;
-        let has_overrides =
-            tx.prepare("SELECT 1 FROM pragma_table_info('experiments') WHERE name = 'overrides'")?.exists([])?;
-        if !has_overrides {
-            tx.execute_batch("ALTER TABLE experiments ADD COLUMN overrides TEXT NOT NULL DEFAULT ''")
-                .with_context(|| format!("adding the experiments' overrides to {}", path.display()))?;
-        }
+        add_column(&tx, "experiments", "overrides TEXT NOT NULL DEFAULT ''", path)?;
+        // Version 1 -> 2: the code that ran each attempt.
+        add_column(&tx, "attempts", "code_commit TEXT", path)?;
+        add_column(&tx, "attempts", "code_digest TEXT", path)?;
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)?;
     }
     tx.commit()?;
+    Ok(())
+}
+
+/// Adds column `definition` (its name, then its type) to `table` unless it is there already.
+fn add_column(conn: &Connection, table: &str, definition: &str, path: &Path) -> Result<()> {
+    let name = definition.split_whitespace().next().expect("a column definition starts with its name");
+    let present =
+        conn.prepare(&format!("SELECT 1 FROM pragma_table_info('{table}') WHERE name = ?1"))?.exists([name])?;
+    if !present {
+        conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {definition}"))
+            .with_context(|| format!("adding {table}.{name} to {}", path.display()))?;
+    }
     Ok(())
 }
 
@@ -371,11 +384,14 @@ impl Store {
             .flatten())
     }
 
-    /// Claims stage `key` for this process, atomically with respect to other processes on the store.
+    /// Claims stage `key` for this process, atomically with respect to other processes on the store; the attempt
+    /// records this binary's code for the stage's kind.
     pub fn claim(&mut self, key: &str, force: bool) -> Result<Claim> {
         let (h, pid) = (host(), std::process::id() as i64);
         let tx = self.conn.transaction_with_behavior(TransactionBehavior::Immediate)?;
-        let status: String = tx.query_row("SELECT status FROM stages WHERE key = ?1", [key], |r| r.get(0))?;
+        let (status, kind): (String, String) =
+            tx.query_row("SELECT status, kind FROM stages WHERE key = ?1", [key], |r| Ok((r.get(0)?, r.get(1)?)))?;
+        let kind = Kind::named(&kind).with_context(|| format!("stage {key} has unknown kind `{kind}`"))?;
         if status == "done" && !force {
             return Ok(Claim::AlreadyDone);
         }
@@ -397,13 +413,35 @@ impl Store {
             )?;
         }
         tx.execute("UPDATE stages SET status = 'running', finished_at = NULL WHERE key = ?1", [key])?;
+        let code = code::current(kind);
         tx.execute(
-            "INSERT INTO attempts (stage_key, status, host, pid, started_at) VALUES (?1, 'running', ?2, ?3, ?4)",
-            params![key, h, pid, now()],
+            "INSERT INTO attempts (stage_key, status, host, pid, started_at, code_commit, code_digest)
+             VALUES (?1, 'running', ?2, ?3, ?4, ?5, ?6)",
+            params![key, h, pid, now(), code.commit, code.digest],
         )?;
         let id = tx.last_insert_rowid();
         tx.commit()?;
         Ok(Claim::Acquired(id))
+    }
+
+    /// The code that built finished stage `key` (its last successful attempt), where that was recorded.
+    pub fn built_by(&self, key: &str) -> Result<Option<CodeVersion>> {
+        let row: Option<(Option<String>, Option<String>)> = self
+            .conn
+            .query_row(
+                "SELECT code_commit, code_digest FROM attempts WHERE stage_key = ?1 AND status = 'done'
+                 ORDER BY id DESC LIMIT 1",
+                [key],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()?;
+        Ok(row.and_then(|(commit, digest)| Some(CodeVersion { commit: commit?, digest: digest? })))
+    }
+
+    /// The code that built finished stage `key` of `kind` where it differs from this binary's (none where it is
+    /// the same, or was never recorded).
+    pub fn built_by_other_code(&self, key: &str, kind: Kind) -> Result<Option<CodeVersion>> {
+        Ok(self.built_by(key)?.filter(|built| built.digest != code::current(kind).digest))
     }
 
     /// Marks a claimed stage failed.
