@@ -40,6 +40,17 @@ pub enum TaskPass {
     Shared,
 }
 
+/// Which features `model.object_attention` reads in each agent frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectAttentionInput {
+    /// The tokens after the causal layers, where each agent frame has mixed with the demonstration's.
+    #[default]
+    Mixed,
+    /// The trunk's own tokens, before positional encoding and the causal layers (as `localise` reads them).
+    Trunk,
+}
+
 /// Initial value of the action head's learned log-scales.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -147,6 +158,9 @@ pub struct ModelConfig {
     /// with where that object is in the agent's view. A departure: the authors read each agent frame only through
     /// its spatial softmax (false).
     pub object_attention: bool,
+    /// Which tokens the object attention reads: `mixed` (after the causal layers) or `trunk` (the trunk's own,
+    /// as `localise --object-attention` reads them). Only with `object_attention`.
+    pub object_attention_input: ObjectAttentionInput,
 }
 
 impl Default for ModelConfig {
@@ -179,6 +193,7 @@ impl Default for ModelConfig {
             pose_head: false,
             task_head: false,
             object_attention: false,
+            object_attention_input: ObjectAttentionInput::Mixed,
         }
     }
 }
@@ -257,6 +272,9 @@ impl ModelConfig {
                  (transformer, temporal_conv), not {:?}",
                 self.architecture.0
             );
+        }
+        if self.object_attention_input != ObjectAttentionInput::Mixed && !self.object_attention {
+            bail!("model.object_attention_input = \"trunk\" chooses the input of model.object_attention: set it true");
         }
         if self.agent_frames < 2 {
             bail!("model.agent_frames = {} must be at least 2 (one action)", self.agent_frames);

@@ -172,6 +172,28 @@ fn the_optional_object_attention_moves_with_the_context_and_fits_the_grasp_posit
 }
 
 #[test]
+fn the_object_attention_reads_the_trunk_tokens_when_told_and_still_fits_the_grasp_positions() {
+    use oneshot_lab::model::config::ObjectAttentionInput;
+    let (context, agent) = (images(2, 4), images(2, 7));
+    let poses = |input| {
+        let _rng = seeded(5);
+        let model = ModelConfig { object_attention: true, object_attention_input: input, pose_head: true, ..tiny() };
+        let (vs, policy) = build_policy(&model, Device::Cpu).unwrap();
+        (policy.forward_t(&context, &agent, false).poses.unwrap(), vs, policy)
+    };
+    let (mixed, _, _) = poses(ObjectAttentionInput::Mixed);
+    let (trunk, vs, policy) = poses(ObjectAttentionInput::Trunk);
+    // Same weights, other tokens under the attention: other positions, so other poses.
+    assert!((mixed - trunk).abs().max().double_value(&[]) > 1e-5, "the input switch changed nothing");
+    let (first, last) = fitted(&vs, &policy, &batch(context, agent, [3, 12]), |l| l.pose);
+    assert!(last < 0.1 * first, "pose loss {first} -> {last}");
+
+    let alone = ModelConfig { object_attention_input: ObjectAttentionInput::Trunk, ..tiny() };
+    let err = alone.validate().unwrap_err().to_string();
+    assert!(err.contains("model.object_attention_input") && err.contains("object_attention"), "{err}");
+}
+
+#[test]
 fn the_optional_task_head_reads_the_context_and_fits_its_labels() {
     let _rng = seeded(3);
     let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();

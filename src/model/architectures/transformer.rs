@@ -4,7 +4,7 @@ use super::Registration;
 use crate::model::attention::{
     AttentionLayer, AttentionSpec, ConvBlock, conv3d_config, frame_causal_mask, positional_encoding,
 };
-use crate::model::config::{ContextAttention, ModelConfig, TaskPass};
+use crate::model::config::{ContextAttention, ModelConfig, ObjectAttentionInput, TaskPass};
 use crate::model::heads::{EmbeddingMlp, ObjectAttention, PolicyHeads, spatial_softmax};
 use crate::model::output::PolicyOutput;
 use crate::model::policy::PolicyNet;
@@ -85,6 +85,8 @@ pub struct TransformerPolicy {
     embed: EmbeddingMlp,
     /// `model.object_attention`: where the task's object is in each agent frame, beside its embedding.
     object_attention: Option<ObjectAttention>,
+    /// The tokens it reads.
+    object_attention_input: ObjectAttentionInput,
     heads: PolicyHeads,
 }
 
@@ -117,6 +119,7 @@ impl TransformerPolicy {
             task_conv: nn::conv(vs / "task_conv", c, c, [3, 1, 1], conv3d_config([0, 0, 0])),
             embed: EmbeddingMlp::new(&(vs / "embed"), 2 * c, hidden, latent, config.dropout),
             object_attention,
+            object_attention_input: config.object_attention_input,
             heads: PolicyHeads::new(vs, latent, frame, config),
         }
     }
@@ -162,7 +165,13 @@ impl PolicyNet for TransformerPolicy {
         let task = self.embed.forward_t(&spatial_softmax(&pooled), train);
 
         let e = match &self.object_attention {
-            Some(attention) => Tensor::cat(&[e, attention.forward(&task, &agent_frames)], -1),
+            Some(attention) => {
+                let read = match self.object_attention_input {
+                    ObjectAttentionInput::Mixed => agent_frames,
+                    ObjectAttentionInput::Trunk => feats.narrow(1, tc, ta),
+                };
+                Tensor::cat(&[e, attention.forward(&task, &read)], -1)
+            }
             None => e,
         };
         self.heads.forward(&task, &e)
