@@ -151,7 +151,8 @@ pub(crate) fn read_only_connection(path: &Path) -> Result<Connection> {
             return Ok(conn);
         }
     }
-    let uri = format!("file:{}?immutable=1", path.display().to_string().replace('?', "%3f").replace('#', "%23"));
+    let escaped = path.display().to_string().replace('%', "%25").replace('?', "%3f").replace('#', "%23");
+    let uri = format!("file:{escaped}?immutable=1");
     let conn = Connection::open_with_flags(&uri, flags).with_context(|| format!("opening {}", path.display()))?;
     readable(&conn).with_context(|| format!("reading {}", path.display()))?;
     Ok(conn)
@@ -579,6 +580,18 @@ mod tests {
             .unwrap();
         let holder = Holder { host: "node7".into(), pid: 4242, started_at: 100.5 };
         assert_eq!(store.claim(&stage.key, false).unwrap(), Claim::Busy(holder));
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn a_store_whose_path_holds_uri_characters_opens_read_only() {
+        // `%41` would read as `A`, `?` end the path and `#` start a fragment in an unescaped SQLite URI.
+        let root = std::env::temp_dir().join(format!("oneshot-store-%41?#-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        drop(Store::open(&root).unwrap());
+        let store = Store::open_for_reading(&root, true).unwrap();
+        assert!(store.is_read_only());
+        assert_eq!(store.stage_counts().unwrap(), vec![]);
         std::fs::remove_dir_all(&root).unwrap();
     }
 }
