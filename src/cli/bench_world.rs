@@ -54,7 +54,7 @@ fn measure(robot: Robot, world: &WorldConfig, episodes: usize) -> Result<WorldBe
 
     let mut env = Env::new(robot, world, true)?;
     let per_action = env.physics_steps_per_action();
-    env.reset(&Instance::sample(Task::from_id(0)?, 0));
+    env.reset(&Instance::sample(Task::from_id(0)?, 0))?;
     let start = Instant::now();
     for _ in 0..frames {
         env.step_physics_only(per_action);

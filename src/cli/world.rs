@@ -4,10 +4,12 @@ use super::options::{FrameArgs, parse_robot};
 use anyhow::{Context, Result, bail};
 use oneshot_lab::data::collect;
 use oneshot_lab::data::collect_config::{CollectConfig, LayoutSharing};
-use oneshot_lab::sim::env::{Env, GripperYaw, WorldConfig};
-use oneshot_lab::sim::expert_check::{ExpertReport, expert_check as check};
+use oneshot_lab::sim::env::{Env, GripperYaw, ObjectSet, WorldConfig};
+use oneshot_lab::sim::expert_check::{
+    ExpertReport, LibraryReport, expert_check as check, library_check, library_instance,
+};
 use oneshot_lab::sim::robot::Robot;
-use oneshot_lab::sim::task::{Instance, NUM_TASKS, Task};
+use oneshot_lab::sim::task::{Instance, NUM_OBJECTS, NUM_TASKS, ObjectPose, SOURCE_BIN, Task};
 use std::path::{Path, PathBuf};
 
 /// Arguments of the `expert-check` command.
@@ -31,6 +33,28 @@ pub struct ExpertCheckArgs {
     /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
     #[arg(long)]
     pub close_on_arrival: bool,
+    /// `base`: the 16 tasks of the four base objects; `library`: each of the 30 library objects in turn
+    /// (`--per-task` environments each), among three others of its split.
+    #[arg(long, value_enum, default_value_t = Objects::Base)]
+    pub objects: Objects,
+}
+
+/// Which objects a world holds (`world.objects`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Objects {
+    /// Milk, bread, cereal and can.
+    Base,
+    /// The 30 procedural library objects (26 training, 4 held out), four per environment.
+    Library,
+}
+
+impl Objects {
+    fn set(self) -> ObjectSet {
+        match self {
+            Objects::Base => ObjectSet::Base,
+            Objects::Library => ObjectSet::Library,
+        }
+    }
 }
 
 /// How the scripted expert turns its gripper about the vertical (`world.demo_yaw`, `world.agent_yaw`).
@@ -107,13 +131,17 @@ pub struct ContactSheetArgs {
     /// Root seed of the layouts.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// `library`: a sheet of the 30 library objects (held-out ones framed in red) instead of layouts.
+    #[arg(long, value_enum, default_value_t = Objects::Base)]
+    pub objects: Objects,
     #[command(flatten)]
     pub frames: FrameArgs,
 }
 
 /// `expert-check`: the expert's staged success per task.
 pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
-    let mut world = WorldConfig { close_on_arrival: a.close_on_arrival, ..WorldConfig::default() };
+    let mut world =
+        WorldConfig { close_on_arrival: a.close_on_arrival, objects: a.objects.set(), ..WorldConfig::default() };
     if let Some(rule) = a.gripper_yaw {
         let rule = match rule {
             YawRule::Fixed => GripperYaw::Fixed,
@@ -126,6 +154,10 @@ pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
         }
     }
     let max_actions = a.max_actions.unwrap_or(CollectConfig::paper(a.robot).settings.max_actions);
+    if a.objects == Objects::Library {
+        print_library_report(&library_check(a.robot, &world, a.per_task, a.seed, max_actions)?);
+        return Ok(());
+    }
     let report = check(a.robot, &world, a.per_task, a.seed, max_actions)?;
     print_report(&report);
     Ok(())
@@ -160,9 +192,13 @@ pub fn collect(a: CollectArgs) -> Result<()> {
     Ok(())
 }
 
-/// `contact-sheet`: first frames of several instances for both robots in one PNG.
+/// `contact-sheet`: first frames of several instances for both robots in one PNG (or the library's objects).
 pub fn contact_sheet(a: ContactSheetArgs) -> Result<()> {
-    render_sheet(&a.out, a.instances, a.seed, &a.frames.world())?;
+    let world = WorldConfig { objects: a.objects.set(), ..a.frames.world() };
+    match a.objects {
+        Objects::Base => render_sheet(&a.out, a.instances, a.seed, &world)?,
+        Objects::Library => render_library_sheet(&a.out, a.instances, a.seed, &world)?,
+    }
     println!("wrote {}", a.out.display());
     Ok(())
 }
@@ -179,6 +215,67 @@ fn print_report(r: &ExpertReport) {
     println!("all  {:>7.1}% {:>7.1}% {:>7.1}%", o[0] * 100.0, o[1] * 100.0, o[2] * 100.0);
 }
 
+/// Prints the per-object report as a table.
+fn print_library_report(r: &LibraryReport) {
+    let n = r.instances_per_object;
+    println!("expert on {} with each library object ({} environments per object)", r.robot, n);
+    println!("{:<14} {:>9} {:>8} {:>8} {:>8}", "object", "split", "reached", "picked", "placed");
+    for (object, c) in &r.per_object {
+        let split = if object.held_out() { "held-out" } else { "training" };
+        let [a, b, p] = c.map(|k| format!("{k}/{n}"));
+        println!("{:<14} {split:>9} {a:>8} {b:>8} {p:>8}", object.name());
+    }
+    let total = (r.per_object.len() * n) as f64;
+    let share = |s: usize| 100.0 * r.per_object.iter().map(|(_, c)| c[s]).sum::<usize>() as f64 / total;
+    println!("{:<14} {:>9} {:>7.1}% {:>7.1}% {:>7.1}%", "all", "", share(0), share(1), share(2));
+    let worst = r.per_object.iter().map(|(_, c)| c[2]).min().unwrap_or(0);
+    println!("fewest placed for one object: {worst}/{n}");
+}
+
+/// Renders each library object alone in the source bin, seen by both robots' camera (rows of six), and frames
+/// the held-out ones in red: the library and its split at a glance. `seed` picks each object's place and yaw.
+fn render_library_sheet(out: &Path, columns: usize, seed: u64, world: &WorldConfig) -> Result<()> {
+    let columns = columns.max(1);
+    let objects: Vec<_> = oneshot_lab::sim::object::Object::library().collect();
+    let (h, w) = (world.image.height, world.image.width);
+    let rows = objects.len().div_ceil(columns);
+    let mut sheet = image::RgbImage::new((w * columns) as u32, (h * rows * Robot::ALL.len()) as u32);
+    for (r, robot) in Robot::ALL.iter().enumerate() {
+        let mut env = Env::new(*robot, world, true)?;
+        for (i, object) in objects.iter().enumerate() {
+            let instance = library_instance(*object, 0, seed + i as u64);
+            let alone = Instance { objects: lone_layout(&instance), ..instance };
+            env.reset(&alone)?;
+            let frame = env.render()?;
+            let mut img = image::RgbImage::from_raw(w as u32, h as u32, frame).context("frame size")?;
+            if object.held_out() {
+                for (x, y, px) in img.enumerate_pixels_mut() {
+                    if x < 2 || y < 2 || x + 2 >= w as u32 || y + 2 >= h as u32 {
+                        *px = image::Rgb([230, 20, 20]);
+                    }
+                }
+            }
+            let (col, row) = (i % columns, r * rows + i / columns);
+            image::imageops::overlay(&mut sheet, &img, (col * w) as i64, (row * h) as i64);
+        }
+    }
+    sheet.save(out).with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}
+
+/// The layout of `instance` with only its task's object in the bin, at the bin's centre; the other three lie
+/// outside the camera's view, beyond the robot's base.
+fn lone_layout(instance: &Instance) -> [ObjectPose; NUM_OBJECTS] {
+    std::array::from_fn(|k| {
+        let pose = instance.objects[k];
+        if k == instance.task.object {
+            ObjectPose { pos: [SOURCE_BIN[0], SOURCE_BIN[1], pose.pos[2]], ..pose }
+        } else {
+            ObjectPose { pos: [-1.0 - k as f64 * 0.2, 0.0, pose.pos[2]], ..pose }
+        }
+    })
+}
+
 /// Renders `instances` first frames per robot (rows: robots, columns: instances) into `out`.
 fn render_sheet(out: &Path, instances: usize, seed: u64, world: &WorldConfig) -> Result<()> {
     if instances == 0 {
@@ -190,7 +287,7 @@ fn render_sheet(out: &Path, instances: usize, seed: u64, world: &WorldConfig) ->
         let mut env = Env::new(*robot, world, true)?;
         for col in 0..instances {
             let task = Task::from_id((col * 5) % NUM_TASKS)?;
-            env.reset(&Instance::sample(task, seed + col as u64));
+            env.reset(&Instance::sample(task, seed + col as u64))?;
             let frame = env.render()?;
             let img = image::RgbImage::from_raw(w as u32, h as u32, frame).context("frame size")?;
             image::imageops::overlay(&mut sheet, &img, (col * w) as i64, (row * h) as i64);

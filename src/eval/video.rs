@@ -63,7 +63,7 @@ pub fn replay(
     let demo = run_expert(&mut demo_env, &Instance::sample(task, result.demo_seed), demo_max_actions, true)?;
     let demo: Vec<Vec<u8>> = demo.steps.into_iter().filter_map(|s| s.frame).collect();
     let mut env = Env::new(Robot::Panda, &world, true)?;
-    env.reset(&Instance::sample(task, result.agent_seed));
+    env.reset(&Instance::sample(task, result.agent_seed))?;
     let mut agent = vec![(env.render()?, Milestones::default())];
     for action in commands {
         env.step(action);

@@ -109,7 +109,7 @@ impl Worker {
         for (slot, spec) in self.slots.iter_mut().zip(&specs) {
             let task = Task::from_id(spec.task)?;
             let (demo_frames, demo_seed) = demonstrate(&mut self.demo_env, task, spec.demo_seed, &self.spec)?;
-            slot.env.reset(&Instance::sample(task, spec.agent_seed));
+            slot.env.reset(&Instance::sample(task, spec.agent_seed))?;
             slot.expert = (self.spec.chooser == Actor::Expert).then(|| Expert::new(&slot.env));
             slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
             let frame = slot.env.render_with(camera)?;

@@ -6,6 +6,7 @@ use super::camera::{Camera, ImageSize, project};
 use super::ids::SceneIds;
 use super::ik::IkSolver;
 use super::milestones::{MilestoneInputs, Milestones};
+use super::object::Object;
 use super::robot::Robot;
 use super::rotation::{downward, from_angle_axis, mat_from_mj, to_angle_axis, yaw_of};
 use super::scene::build_model;
@@ -58,6 +59,30 @@ pub struct WorldConfig {
     /// latest), so that the gripper does not wait, motionless, at the bottom: from a few recent frames a policy
     /// cannot tell that wait from the closing it must follow with a rise.
     pub close_on_arrival: bool,
+    /// The objects: `base` (the four of the paper's main experiment) or `library` (the appendix's multi-object
+    /// environments: each environment lays out four of the 30 library objects, drawn by its own seed).
+    pub objects: ObjectSet,
+}
+
+/// Which objects a world holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectSet {
+    /// Milk, bread, cereal and can, in every layout.
+    #[default]
+    Base,
+    /// The 30 procedural objects of `sim::object` (26 for training, 4 held out), four per environment.
+    Library,
+}
+
+impl ObjectSet {
+    /// Every object a scene of this set is built with.
+    pub fn objects(self) -> Vec<Object> {
+        match self {
+            ObjectSet::Base => Object::ALL.to_vec(),
+            ObjectSet::Library => Object::library().collect(),
+        }
+    }
 }
 
 impl Default for WorldConfig {
@@ -72,6 +97,7 @@ impl Default for WorldConfig {
             agent_yaw: GripperYaw::Fixed,
             demo_yaw: GripperYaw::ObjectYaw,
             close_on_arrival: false,
+            objects: ObjectSet::Base,
         }
     }
 }
@@ -145,10 +171,11 @@ impl Env {
     /// Builds the scene for `robot`; `render` opens a headless camera.
     pub fn new(robot: Robot, config: &WorldConfig, render: bool) -> Result<Env> {
         config.validate()?;
-        let mut model = build_model(robot, config.image)?;
+        let objects = config.objects.objects();
+        let mut model = build_model(robot, config.image, &objects)?;
         model.opt_mut().timestep = config.physics_dt;
         let model = Arc::new(model);
-        let ids = SceneIds::resolve(&model, robot)?;
+        let ids = SceneIds::resolve(&model, robot, &objects)?;
         let camera = if render { Some(Camera::new(&model, ids.camera, config.image, config.visuals)?) } else { None };
         let mut ik = IkSolver::new(model.clone(), ids.clone(), robot.spec().init_qpos);
         let (_, rest_rot) = ik.forward(&robot.spec().init_qpos);
@@ -211,9 +238,13 @@ impl Env {
         self.milestones
     }
 
-    /// Starts an episode: robot at its initial pose with the gripper open, objects laid out, settled.
-    pub fn reset(&mut self, instance: &Instance) {
+    /// Starts an episode: robot at its initial pose with the gripper open, the instance's objects laid out and
+    /// settled, the scene's other objects held still at their parking places. An error names an object the
+    /// scene was not built with.
+    pub fn reset(&mut self, instance: &Instance) -> Result<()> {
+        self.ids.assign(&instance.kinds)?;
         self.data.reset();
+        self.hold_parked_objects(&instance.kinds);
         let spec = self.robot.spec();
         {
             let qpos = self.data.qpos_mut();
@@ -240,6 +271,22 @@ impl Env {
         self.start_z = self.object_pos(instance.task.object)[2];
         self.milestones = Milestones::default();
         self.update_stages();
+        Ok(())
+    }
+
+    /// Cancels gravity on every object of the scene outside `kinds`, so that it floats where the model parks
+    /// it, out of sight and touching nothing (the reset zeroed the forces of the previous layout).
+    fn hold_parked_objects(&mut self, kinds: &[Object; NUM_OBJECTS]) {
+        let gravity = self.data.model().opt().gravity;
+        let parked: Vec<usize> =
+            self.ids.objects.iter().filter(|(o, _)| !kinds.contains(o)).map(|(_, [body, _, _])| *body).collect();
+        for body in parked {
+            let weight = self.data.model().body_subtreemass()[body];
+            let force = &mut self.data.xfrc_applied_mut()[body];
+            for axis in 0..3 {
+                force[axis] = -gravity[axis] * weight;
+            }
+        }
     }
 
     /// Applies one action for 1 / policy_hz seconds.
@@ -312,6 +359,12 @@ impl Env {
     /// Position of object `k`.
     pub fn object_pos(&self, k: usize) -> [f64; 3] {
         self.data.xpos()[self.ids.object_body[k]]
+    }
+
+    /// Position of `object`, wherever it is (laid out or parked); none if the scene was built without it.
+    pub fn position_of(&self, object: Object) -> Option<[f64; 3]> {
+        let (_, [body, _, _]) = self.ids.objects.iter().find(|(o, _)| *o == object)?;
+        Some(self.data.xpos()[*body])
     }
 
     /// Yaw of object `k` about the vertical.

@@ -89,8 +89,8 @@ impl Expert {
 
     /// A fresh expert for the episode `env` was just reset to, taking its positions from `guidance`.
     pub fn guided(env: &Env, guidance: Guidance) -> Expert {
-        let task = env.instance().expect("expert needs a reset environment").task;
-        let obj = task.object_kind();
+        let instance = env.instance().expect("expert needs a reset environment");
+        let (task, obj) = (instance.task, instance.kinds[instance.task.object]);
         let p = match guidance {
             Guidance::Privileged => env.object_pos(task.object),
             Guidance::Given { grasp, .. } => grasp,
@@ -101,7 +101,7 @@ impl Expert {
             (GripperYaw::ObjectYaw, Guidance::Privileged) => grasp_yaw(obj, env.object_yaw(task.object)),
             (GripperYaw::Heading, _) => {
                 let (ee, _) = env.eef_pose();
-                let turn = if obj == Object::Cereal { CEREAL_TURN } else { 0.0 };
+                let turn = if obj == Object::CEREAL { CEREAL_TURN } else { 0.0 };
                 wrap_angle(start_yaw + (p[1] - ee[1]).atan2(p[0] - ee[0]) + turn)
             }
         };
@@ -124,9 +124,9 @@ impl Expert {
     fn grasp_point(&self, env: &Env) -> Vector3<f64> {
         let p = match self.guidance {
             Guidance::Privileged => {
-                let task = env.instance().expect("expert needs a reset environment").task;
-                let obj = Vector3::from(env.object_pos(task.object));
-                obj + Vector3::new(0.0, 0.0, grasp_offset(task.object_kind()))
+                let instance = env.instance().expect("expert needs a reset environment");
+                let obj = Vector3::from(env.object_pos(instance.task.object));
+                obj + Vector3::new(0.0, 0.0, grasp_offset(instance.kinds[instance.task.object]))
             }
             Guidance::Given { grasp, .. } => Vector3::from(grasp),
         };
@@ -212,8 +212,9 @@ fn wrap_angle(a: f64) -> f64 {
 /// Height of the grasp point relative to the object's centre.
 fn grasp_offset(obj: Object) -> f64 {
     match obj.shape() {
-        Shape::Box([_, _, h]) => (h - 0.025).max(0.0),
-        Shape::Cylinder { half_height, .. } => (half_height - 0.025).max(0.0),
+        // Round shapes narrow above their middle: closed on their widest section.
+        Shape::Sphere(_) | Shape::Ellipsoid(_) => 0.0,
+        shape => (shape.half_extents()[2] - 0.025).max(0.0),
     }
 }
 
@@ -221,9 +222,9 @@ fn grasp_offset(obj: Object) -> f64 {
 /// chosen in (-pi/2, pi/2] to keep the wrist near its rest pose.
 fn grasp_yaw(obj: Object, object_yaw: f64) -> f64 {
     let period = match obj.shape() {
-        Shape::Cylinder { .. } => return 0.0,
+        Shape::Cylinder { .. } | Shape::Sphere(_) => return 0.0,
         Shape::Box([x, y, _]) if (x - y).abs() < 1e-9 => FRAC_PI_2,
-        Shape::Box(_) => PI,
+        Shape::Box(_) | Shape::Ellipsoid(_) => PI,
     };
     // downward(yaw) maps the gripper x axis to (-cos yaw, -sin yaw, 0): align with the object's y axis.
     let mut yaw = object_yaw + FRAC_PI_2;
@@ -241,13 +242,13 @@ mod tests {
     #[test]
     fn grasp_yaw_closes_across_the_narrow_side() {
         for yaw in [0.0, 0.3, 2.5, 4.0, 6.0] {
-            let g = grasp_yaw(Object::Bread, yaw);
+            let g = grasp_yaw(Object::BREAD, yaw);
             assert!(g > -FRAC_PI_2 - 1e-9 && g <= FRAC_PI_2 + 1e-9);
             let closing = downward(g) * Vector3::x();
             let narrow = Vector3::new(-yaw.sin(), yaw.cos(), 0.0);
             assert!((closing.dot(&narrow).abs() - 1.0).abs() < 1e-9, "yaw {yaw}");
         }
-        assert_eq!(grasp_yaw(Object::Can, 1.0), 0.0);
-        assert!(grasp_yaw(Object::Milk, 1.0).abs() <= PI / 4.0 + 1e-9);
+        assert_eq!(grasp_yaw(Object::CAN, 1.0), 0.0);
+        assert!(grasp_yaw(Object::MILK, 1.0).abs() <= PI / 4.0 + 1e-9);
     }
 }

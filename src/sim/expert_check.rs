@@ -1,10 +1,14 @@
 //! The scripted expert's staged success over instances of every task (`expert-check`).
 use super::env::{Env, WorldConfig};
 use super::milestones::Milestones;
+use super::object::{Object, Split, split_objects};
 use super::robot::Robot;
 use super::rollout::run_expert;
-use super::task::{Instance, NUM_TASKS, Task};
+use super::task::{Instance, NUM_OBJECTS, NUM_TARGETS, NUM_TASKS, Task};
 use anyhow::{Result, bail};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
 
 /// Success counts per task, in task order.
 pub struct ExpertReport {
@@ -53,4 +57,60 @@ pub fn expert_check(
         counts.push(c);
     }
     Ok(ExpertReport { robot, per_task: counts, instances_per_task: per_task })
+}
+
+/// Success counts [reached, picked, placed] of the expert moving each library object, in catalogue order.
+pub struct LibraryReport {
+    pub robot: Robot,
+    pub per_object: Vec<(Object, [usize; 3])>,
+    pub instances_per_object: usize,
+}
+
+/// The `i`-th check environment of library object `object`: it sits in slot `i % 4` beside three other objects
+/// of its own split, and the task is to carry it to quadrant `(i + i / 4) % 4`.
+pub fn library_instance(object: Object, i: usize, seed: u64) -> Instance {
+    let split = if object.held_out() { Split::HeldOut } else { Split::Train };
+    let mut others: Vec<Object> = split_objects(split).into_iter().filter(|o| *o != object).collect();
+    let layout_seed = check_seed(seed, 0x100 + object_index(object), i);
+    others.shuffle(&mut ChaCha8Rng::seed_from_u64(layout_seed));
+    let slot = i % NUM_OBJECTS;
+    let mut kinds = [others[0], others[1], others[2], others[2]];
+    kinds[slot] = object;
+    for (k, other) in (0..NUM_OBJECTS).filter(|&k| k != slot).zip(&others) {
+        kinds[k] = *other;
+    }
+    let task = Task { object: slot, target: (i + i / NUM_OBJECTS) % NUM_TARGETS };
+    Instance::sample_with(task, layout_seed, kinds)
+}
+
+fn object_index(object: Object) -> usize {
+    Object::library().position(|o| o == object).expect("a library object")
+}
+
+/// Runs the expert on `per_object` environments of each of the 30 library objects (`world.objects` must be
+/// `library`), without rendering.
+pub fn library_check(
+    robot: Robot,
+    world: &WorldConfig,
+    per_object: usize,
+    seed: u64,
+    max_actions: usize,
+) -> Result<LibraryReport> {
+    if per_object == 0 || max_actions == 0 {
+        bail!("--per-object ({per_object}) and --max-actions ({max_actions}) must be at least 1");
+    }
+    let mut env = Env::new(robot, world, false)?;
+    let mut per_object_counts = Vec::new();
+    for object in Object::library() {
+        let mut c = [0usize; 3];
+        for i in 0..per_object {
+            let ep = run_expert(&mut env, &library_instance(object, i, seed), max_actions, false)?;
+            let Milestones { reached, picked, placed } = ep.milestones;
+            for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
+                c[k] += hit as usize;
+            }
+        }
+        per_object_counts.push((object, c));
+    }
+    Ok(LibraryReport { robot, per_object: per_object_counts, instances_per_object: per_object })
 }

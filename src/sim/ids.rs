@@ -1,7 +1,8 @@
 //! Indices into the compiled scene that control, sensing and success need, resolved once by name.
+use super::object::Object;
 use super::robot::Robot;
 use super::scene::{GRIPPER_PREFIX, ROBOT_PREFIX, object_body_name};
-use super::task::{NUM_OBJECTS, Object};
+use super::task::NUM_OBJECTS;
 use anyhow::{Context, Result};
 use mujoco_rs::prelude::*;
 
@@ -16,15 +17,18 @@ pub struct SceneIds {
     pub finger_actuator: [usize; 2],
     /// The gripper's grip site: the end-effector frame (z along the fingers, x across them).
     pub ee_site: usize,
+    /// Body, qpos and dof addresses of the objects in the current layout's slots ([`SceneIds::assign`]).
     pub object_body: [usize; NUM_OBJECTS],
     pub object_qpos: [usize; NUM_OBJECTS],
     pub object_dof: [usize; NUM_OBJECTS],
+    /// Every object of the scene with its body, qpos and dof addresses, in the order it was built with.
+    pub objects: Vec<(Object, [usize; 3])>,
     pub camera: usize,
 }
 
 impl SceneIds {
-    /// Looks every element up in `model`, built for `robot`.
-    pub fn resolve(model: &MjModel, robot: Robot) -> Result<SceneIds> {
+    /// Looks every element up in `model`, built for `robot` with `objects` (the first four fill the slots).
+    pub fn resolve(model: &MjModel, robot: Robot, objects: &[Object]) -> Result<SceneIds> {
         let spec = robot.spec();
         let id = |kind: MjtObjBase, name: &str| {
             model.name_to_id(kind, name).with_context(|| format!("scene has no {kind:?} named {name}"))
@@ -50,17 +54,13 @@ impl SceneIds {
             finger_qpos[i] = model.jnt_qposadr()[j] as usize;
             finger_actuator[i] = actuator_of(j)?;
         }
-        let mut object_body = [0; NUM_OBJECTS];
-        let mut object_qpos = [0; NUM_OBJECTS];
-        let mut object_dof = [0; NUM_OBJECTS];
-        for (i, obj) in Object::ALL.iter().enumerate() {
+        let mut resolved = Vec::with_capacity(objects.len());
+        for obj in objects {
             let b = id(MjtObjBase::mjOBJ_BODY, &object_body_name(*obj))?;
             let j = model.body_jntadr()[b] as usize;
-            object_body[i] = b;
-            object_qpos[i] = model.jnt_qposadr()[j] as usize;
-            object_dof[i] = model.jnt_dofadr()[j] as usize;
+            resolved.push((*obj, [b, model.jnt_qposadr()[j] as usize, model.jnt_dofadr()[j] as usize]));
         }
-        Ok(SceneIds {
+        let mut ids = SceneIds {
             arm_joint,
             arm_qpos: arm_joint.map(|j| model.jnt_qposadr()[j] as usize),
             arm_dof: arm_joint.map(|j| model.jnt_dofadr()[j] as usize),
@@ -68,10 +68,28 @@ impl SceneIds {
             finger_qpos,
             finger_actuator,
             ee_site: id(MjtObjBase::mjOBJ_SITE, &format!("{ROBOT_PREFIX}{GRIPPER_PREFIX}grip_site"))?,
-            object_body,
-            object_qpos,
-            object_dof,
+            object_body: [0; NUM_OBJECTS],
+            object_qpos: [0; NUM_OBJECTS],
+            object_dof: [0; NUM_OBJECTS],
+            objects: resolved,
             camera: id(MjtObjBase::mjOBJ_CAMERA, "frontview")?,
-        })
+        };
+        let first: Vec<Object> = objects.iter().take(NUM_OBJECTS).copied().collect();
+        ids.assign(&first.try_into().map_err(|_| anyhow::anyhow!("a scene needs at least four objects"))?)?;
+        Ok(ids)
+    }
+
+    /// Points the slots at the objects `kinds`; an error names an object the scene was not built with.
+    pub fn assign(&mut self, kinds: &[Object; NUM_OBJECTS]) -> Result<()> {
+        for (slot, kind) in kinds.iter().enumerate() {
+            let [b, q, d] = self
+                .objects
+                .iter()
+                .find(|(o, _)| o == kind)
+                .map(|(_, a)| *a)
+                .with_context(|| format!("this scene has no object {}", kind.name()))?;
+            (self.object_body[slot], self.object_qpos[slot], self.object_dof[slot]) = (b, q, d);
+        }
+        Ok(())
     }
 }

@@ -8,6 +8,7 @@ pub mod expert_check;
 pub mod ids;
 pub mod ik;
 pub mod milestones;
+pub mod object;
 pub mod robot;
 pub mod rollout;
 pub mod rotation;

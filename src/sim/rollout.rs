@@ -42,7 +42,7 @@ pub fn run_expert_perturbed(
     noise: f64,
 ) -> Result<Episode> {
     let mut rng = ChaCha8Rng::seed_from_u64(derive_seed("expert-noise", &[instance.seed]));
-    env.reset(instance);
+    env.reset(instance)?;
     let mut expert = Expert::new(env);
     let mut steps = Vec::with_capacity(max_actions + 1);
     let mut settle = 0;

@@ -2,8 +2,8 @@
 //! gripper (attached through MuJoCo's model-editing API), lights and the `frontview` camera.
 use super::assets::assets_root;
 use super::camera::{CAMERA_EULER, CAMERA_POS, ImageSize, Intrinsics};
+use super::object::{Object, Pattern};
 use super::robot::Robot;
-use super::task::{Object, Shape};
 use anyhow::{Context, Result, anyhow};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_editing::Attach;
@@ -21,8 +21,9 @@ pub fn object_body_name(obj: Object) -> String {
     format!("obj_{}", obj.name())
 }
 
-/// Compiles the scene for `robot`, with the camera set up for frames of `image`.
-pub fn build_model(robot: Robot, image: ImageSize) -> Result<MjModel> {
+/// Compiles the scene for `robot` with `objects` (parked until a reset lays some of them out), with the camera
+/// set up for frames of `image`.
+pub fn build_model(robot: Robot, image: ImageSize, objects: &[Object]) -> Result<MjModel> {
     let root = assets_root()?;
     let spec = robot.spec();
     let robot_xml = root.join("robots").join(spec.robot_dir).join("robot.xml");
@@ -40,8 +41,8 @@ pub fn build_model(robot: Robot, image: ImageSize) -> Result<MjModel> {
         .attach_by_deep_copy(&mut gripper, GRIPPER_PREFIX, "")
         .map_err(|e| anyhow!("attaching the gripper: {e}"))?;
 
-    let mut scene =
-        MjSpec::from_xml_string(&world_xml(image, spec.base_pos)).map_err(|e| anyhow!("scene template: {e}"))?;
+    let mut scene = MjSpec::from_xml_string(&world_xml(image, spec.base_pos, objects))
+        .map_err(|e| anyhow!("scene template: {e}"))?;
     let world = scene.world_body_mut();
     world
         .add_frame()
@@ -76,27 +77,65 @@ fn disable_self_collision(model: &mut MjModel) {
     }
 }
 
-/// The scene's own MJCF: physics options, render quality, objects, pedestal, light and camera.
-fn world_xml(image: ImageSize, base: [f64; 3]) -> String {
-    let mut objects = String::new();
-    for (i, obj) in Object::ALL.iter().enumerate() {
+/// Where object `i` of a scene waits while no layout uses it: in a row far outside the camera's view.
+pub fn parking_position(i: usize) -> [f64; 3] {
+    [2.0 + i as f64 * 0.2, 0.0, 0.1]
+}
+
+/// The MJCF of `objects`' bodies (parked) and, for the patterned ones, their textures and materials.
+fn objects_xml(objects: &[Object]) -> (String, String) {
+    let (mut bodies, mut assets) = (String::new(), String::new());
+    for (i, obj) in objects.iter().enumerate() {
+        let name = object_body_name(*obj);
         let [r, g, b, a] = obj.rgba();
-        let geom = match obj.shape() {
-            Shape::Box([x, y, z]) => format!(r#"type="box" size="{x} {y} {z}""#),
-            Shape::Cylinder { radius, half_height } => {
-                format!(r#"type="cylinder" size="{radius} {half_height}""#)
+        let look = match obj.pattern() {
+            Pattern::Plain => format!(r#"rgba="{r} {g} {b} {a}""#),
+            Pattern::Checker([r2, g2, b2]) | Pattern::Stripes([r2, g2, b2]) => {
+                let (builtin, mark) = match obj.pattern() {
+                    Pattern::Checker(_) => ("checker", ""),
+                    _ => ("gradient", r#" mark="edge" markrgb="0 0 0""#),
+                };
+                assets.push_str(&format!(
+                    r#"<texture name="{name}_t" type="cube" builtin="{builtin}" rgb1="{r} {g} {b}" rgb2="{r2} {g2} {b2}"
+                 width="32" height="32"{mark}/>
+    <material name="{name}_m" texture="{name}_t" texrepeat="2 2"/>
+"#
+                ));
+                format!(r#"material="{name}_m""#)
             }
         };
+        // The library's objects (round ones among them) also resist rolling, equally for all: the base objects keep
+        // the contacts their collections were made with.
+        let contact = if Object::ALL.contains(obj) {
+            r#"condim="4" friction="1.5 0.01 0.001""#
+        } else {
+            r#"condim="6" friction="1.5 0.01 0.005""#
+        };
+        let top = obj.top().map_or_else(String::new, |top| {
+            let z = obj.half_height() + top.half_extents()[2];
+            format!(
+                r#"<geom name="{name}_top" {} pos="0 0 {z}" {look} mass="0.01" {contact}
+                       solref="0.01 1" group="2"/>"#,
+                top.mjcf()
+            )
+        });
         // Parked out of the way; `Env::reset` places them.
-        let x = 2.0 + i as f64 * 0.2;
-        objects.push_str(&format!(
-            r#"<body name="{name}" pos="{x} 0 0.1"><freejoint/>
-                 <geom name="{name}_g" {geom} rgba="{r} {g} {b} {a}" mass="0.1" condim="4"
-                       friction="1.5 0.01 0.001" solref="0.01 1" group="2"/></body>
+        let [x, y, z] = parking_position(i);
+        bodies.push_str(&format!(
+            r#"<body name="{name}" pos="{x} {y} {z}"><freejoint/>
+                 <geom name="{name}_g" {geom} {look} mass="0.1" {contact}
+                       solref="0.01 1" group="2"/>{top}</body>
 "#,
-            name = object_body_name(*obj)
+            geom = obj.shape().mjcf()
         ));
     }
+    (bodies, assets)
+}
+
+/// The scene's own MJCF: physics options, render quality, objects, pedestal, light and camera.
+fn world_xml(image: ImageSize, base: [f64; 3], objects: &[Object]) -> String {
+    let (objects, assets) = objects_xml(objects);
+    let assets = if assets.is_empty() { assets } else { format!("<asset>\n    {assets}  </asset>\n  ") };
     let [cx, cy, cz] = CAMERA_POS;
     let [ex, ey, ez] = CAMERA_EULER;
     let intrinsics = Intrinsics::for_size(image).mjcf_attributes(image);
@@ -111,7 +150,7 @@ fn world_xml(image: ImageSize, base: [f64; 3]) -> String {
     <quality shadowsize="0" offsamples="0"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5" specular="0.1 0.1 0.1"/>
   </visual>
-  <worldbody>
+  {assets}<worldbody>
     <geom name="pedestal" type="cylinder" size="0.12 {ph}" pos="{px} {py} {ph}" rgba="0.2 0.2 0.22 1"
           contype="0" conaffinity="0" group="1"/>
     <camera name="frontview" mode="fixed" pos="{cx} {cy} {cz}" euler="{ex} {ey} {ez}" {intrinsics}/>

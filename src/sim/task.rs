@@ -5,6 +5,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
+pub use super::object::{Object, Shape};
+
 /// Number of objects in the source bin.
 pub const NUM_OBJECTS: usize = 4;
 /// Number of target quadrants in the target bin.
@@ -20,76 +22,6 @@ pub const TARGET_BIN: [f64; 3] = [0.6, 0.38, 0.8];
 pub const QUADRANT_SIZE: [f64; 2] = [0.195, 0.245];
 /// Height of the bins' floor top surface.
 pub const BIN_FLOOR_TOP: f64 = 0.82;
-
-/// The four objects, as primitive shapes with distinct looks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Object {
-    Milk,
-    Bread,
-    Cereal,
-    Can,
-}
-
-/// An object's collision and visual shape.
-pub enum Shape {
-    /// Box with half-sizes (x, y, z); its narrow side is y.
-    Box([f64; 3]),
-    /// Upright cylinder with radius and half-height.
-    Cylinder { radius: f64, half_height: f64 },
-}
-
-impl Object {
-    /// Objects in task order (task = object * 4 + target).
-    pub const ALL: [Object; NUM_OBJECTS] = [Object::Milk, Object::Bread, Object::Cereal, Object::Can];
-
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Object::Milk => "milk",
-            Object::Bread => "bread",
-            Object::Cereal => "cereal",
-            Object::Can => "can",
-        }
-    }
-
-    /// Geometry of the object: small enough, like the authors' objects (their footprints are at most 4 x 4 cm),
-    /// that a gripper at a fixed yaw grasps it however it lies (the Panda's fingers open to 8 cm).
-    pub fn shape(self) -> Shape {
-        match self {
-            Object::Milk => Shape::Box([0.020, 0.020, 0.050]),
-            Object::Bread => Shape::Box([0.030, 0.018, 0.025]),
-            Object::Cereal => Shape::Box([0.027, 0.016, 0.045]),
-            Object::Can => Shape::Cylinder { radius: 0.021, half_height: 0.040 },
-        }
-    }
-
-    /// Base colour (RGBA).
-    pub fn rgba(self) -> [f32; 4] {
-        match self {
-            Object::Milk => [0.95, 0.95, 0.92, 1.0],
-            Object::Bread => [0.80, 0.55, 0.25, 1.0],
-            Object::Cereal => [0.85, 0.15, 0.12, 1.0],
-            Object::Can => [0.20, 0.45, 0.85, 1.0],
-        }
-    }
-
-    /// Height of the object's centre above the surface it rests on.
-    pub fn half_height(self) -> f64 {
-        match self.shape() {
-            Shape::Box(h) => h[2],
-            Shape::Cylinder { half_height, .. } => half_height,
-        }
-    }
-
-    /// Radius of the object's footprint, for placement clearance.
-    pub fn footprint_radius(self) -> f64 {
-        match self.shape() {
-            Shape::Box(h) => h[0].hypot(h[1]),
-            Shape::Cylinder { radius, .. } => radius,
-        }
-    }
-}
 
 /// One of the 16 tasks: carry `object` into target quadrant `target`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -110,11 +42,6 @@ impl Task {
     /// Task id in 0..16.
     pub fn id(self) -> usize {
         self.object * NUM_TARGETS + self.target
-    }
-
-    /// The object to move.
-    pub fn object_kind(self) -> Object {
-        Object::ALL[self.object]
     }
 
     /// Centre (x, y) of the target quadrant: 0 near-right, 1 near-left, 2 far-right, 3 far-left
@@ -144,11 +71,13 @@ pub struct ObjectPose {
     pub yaw: f64,
 }
 
-/// A task instance: a task plus a random layout of all four objects in the source bin.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// A task instance: a task plus a random layout of the environment's four objects in the source bin.
+#[derive(Debug, Clone, PartialEq)]
 pub struct Instance {
     pub task: Task,
     pub seed: u64,
+    /// The environment's objects, by slot (the base world's: milk, bread, cereal, can).
+    pub kinds: [Object; NUM_OBJECTS],
     pub objects: [ObjectPose; NUM_OBJECTS],
 }
 
@@ -158,16 +87,21 @@ const PLACEMENT_HALF: [f64; 2] = [0.13, 0.17];
 const CLEARANCE: f64 = 0.025;
 
 impl Instance {
-    /// Samples a layout by rejection: objects inside the source bin, apart by a clearance margin,
-    /// yaw uniform in [0, pi/4] or [3pi/4, 2pi] (the paper's code). Same seed, same layout.
+    /// Samples a layout of the base world's objects by rejection: objects inside the source bin, apart by a
+    /// clearance margin, yaw uniform in [0, pi/4] or [3pi/4, 2pi] (the paper's code). Same seed, same layout.
     pub fn sample(task: Task, seed: u64) -> Instance {
+        Instance::sample_with(task, seed, Object::ALL)
+    }
+
+    /// Samples a layout of the objects `kinds` (by slot) as [`Instance::sample`] does.
+    pub fn sample_with(task: Task, seed: u64, kinds: [Object; NUM_OBJECTS]) -> Instance {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut placed: Vec<ObjectPose> = Vec::with_capacity(NUM_OBJECTS);
-        for obj in Object::ALL {
+        for obj in kinds {
             let pose = loop {
                 let x = SOURCE_BIN[0] + rng.random_range(-PLACEMENT_HALF[0]..PLACEMENT_HALF[0]);
                 let y = SOURCE_BIN[1] + rng.random_range(-PLACEMENT_HALF[1]..PLACEMENT_HALF[1]);
-                let free = placed.iter().zip(Object::ALL).all(|(p, other)| {
+                let free = placed.iter().zip(kinds).all(|(p, other)| {
                     let d = (p.pos[0] - x).hypot(p.pos[1] - y);
                     d > obj.footprint_radius() + other.footprint_radius() + CLEARANCE
                 });
@@ -180,7 +114,7 @@ impl Instance {
             };
             placed.push(pose);
         }
-        Instance { task, seed, objects: placed.try_into().expect("four objects") }
+        Instance { task, seed, kinds, objects: placed.try_into().expect("four objects") }
     }
 }
 

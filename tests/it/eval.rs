@@ -228,7 +228,7 @@ fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video(
     let task = Task::from_id(6).unwrap();
     let (agent_seed, demo_seed) = (11, 12);
     let mut env = Env::new(Robot::Panda, &world, true).unwrap();
-    env.reset(&Instance::sample(task, agent_seed));
+    env.reset(&Instance::sample(task, agent_seed)).unwrap();
     let mut expert = Expert::new(&env);
     let (mut frames, mut actions) = (vec![env.render().unwrap()], vec![]);
     for _ in 0..40 {

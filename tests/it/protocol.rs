@@ -32,7 +32,7 @@ fn the_view_is_the_authors_crop_and_projection_finds_the_objects() {
 
     let small = world(120, 160);
     let mut env = Env::new(Robot::Panda, &small, true).unwrap();
-    env.reset(&Instance::sample(Task::from_id(12).unwrap(), 4));
+    env.reset(&Instance::sample(Task::from_id(12).unwrap(), 4)).unwrap();
     let frame = env.render().unwrap();
     for (k, obj) in Object::ALL.iter().enumerate() {
         let p = env.object_pos(k);

@@ -11,6 +11,58 @@ use oneshot_lab::sim::rotation::rotation_error;
 use oneshot_lab::sim::task::{Instance, Task};
 use rand::{Rng, SeedableRng};
 
+#[test]
+fn a_library_environment_lays_out_its_four_objects_and_parks_the_rest_for_both_robots() {
+    use oneshot_lab::sim::env::ObjectSet;
+    use oneshot_lab::sim::object::{Object, Split, environment_objects};
+    use oneshot_lab::sim::task::SOURCE_BIN;
+    let world = WorldConfig { objects: ObjectSet::Library, ..small_world() };
+    let kinds = environment_objects(Split::Train, 7);
+    let instance = Instance::sample_with(Task::from_id(9).unwrap(), 3, kinds);
+    let mut positions = Vec::new();
+    for robot in Robot::ALL {
+        let mut env = Env::new(robot, &world, false).unwrap();
+        // Another environment first: its objects must leave the bin when this one is laid out.
+        let before = Instance::sample_with(Task::from_id(0).unwrap(), 4, environment_objects(Split::Train, 8));
+        env.reset(&before).unwrap();
+        env.reset(&instance).unwrap();
+        for _ in 0..5 {
+            env.step_physics_only(env.physics_steps_per_action());
+        }
+        for object in Object::library() {
+            let p = env.position_of(object).unwrap();
+            let in_bin = (p[0] - SOURCE_BIN[0]).abs() < 0.2 && (p[1] - SOURCE_BIN[1]).abs() < 0.2;
+            assert_eq!(in_bin, kinds.contains(&object), "{robot}: {} at {p:?}", object.name());
+            if !kinds.contains(&object) {
+                assert!(p[2] > 0.09, "{robot}: parked {} fell to {:.3}", object.name(), p[2]);
+            }
+        }
+        positions.push((0..4).map(|k| env.object_pos(k)).collect::<Vec<_>>());
+        assert!(env.position_of(Object::MILK).is_none(), "the base objects are not in the library world");
+    }
+    // The same environment, the same objects in the same slots and places, for the demonstrator and the agent.
+    for (a, b) in positions[0].iter().zip(&positions[1]) {
+        assert!((a[0] - b[0]).abs() < 0.01 && (a[1] - b[1]).abs() < 0.01, "{a:?} vs {b:?}");
+    }
+    let base = Env::new(Robot::Panda, &small_world(), false);
+    let err = base.unwrap().reset(&instance).unwrap_err().to_string();
+    assert!(err.contains(kinds[0].name()), "{err}");
+}
+
+#[test]
+fn the_expert_places_library_objects_with_both_robots() {
+    use oneshot_lab::sim::env::ObjectSet;
+    use oneshot_lab::sim::expert_check::library_check;
+    let world = WorldConfig { objects: ObjectSet::Library, close_on_arrival: true, ..WorldConfig::default() };
+    for robot in Robot::ALL {
+        let report = library_check(robot, &world, 2, 0, 100).unwrap();
+        assert_eq!(report.per_object.len(), 30);
+        let placed: usize = report.per_object.iter().map(|(_, c)| c[2]).sum();
+        let failed: Vec<_> = report.per_object.iter().filter(|(_, c)| c[2] == 0).map(|(o, _)| o.name()).collect();
+        assert!(placed >= 54 && failed.is_empty(), "{robot}: {placed}/60 placed; never placed: {failed:?}");
+    }
+}
+
 fn small_world() -> WorldConfig {
     WorldConfig { image: ImageSize { height: 48, width: 64 }, ..WorldConfig::default() }
 }
@@ -62,7 +114,7 @@ fn expert_places_the_milk_in_every_quadrant_with_both_robots() {
 #[test]
 fn end_effector_moves_to_the_commanded_target() {
     let mut env = Env::new(Robot::Sawyer, &small_world(), false).unwrap();
-    env.reset(&Instance::sample(Task::from_id(0).unwrap(), 5));
+    env.reset(&Instance::sample(Task::from_id(0).unwrap(), 5)).unwrap();
     let target = [0.6, 0.1, 1.0];
     let rot = oneshot_lab::sim::rotation::downward(0.3);
     let (angle, axis) = oneshot_lab::sim::rotation::to_angle_axis(&rot);
@@ -80,7 +132,7 @@ fn frames_show_the_scene_and_the_end_effector_projects_inside() {
     let world = small_world();
     for robot in Robot::ALL {
         let mut env = Env::new(robot, &world, true).unwrap();
-        env.reset(&Instance::sample(Task::from_id(0).unwrap(), 1));
+        env.reset(&Instance::sample(Task::from_id(0).unwrap(), 1)).unwrap();
         let frame = env.render().unwrap();
         assert_eq!(frame.len(), world.image.rgb_len());
         let distinct: std::collections::HashSet<&[u8]> = frame.chunks(3).collect();
@@ -112,7 +164,7 @@ fn the_scripted_expert_places_the_object_at_the_positions_it_is_given() {
         let (grasp, drop) = ([q[0], q[1], q[2]], [q[3], q[4], q[5]]);
         assert!(drop[2] > grasp[2] + 0.1, "the drop point lies above the grasp point: {q:?}");
 
-        env.reset(&inst);
+        env.reset(&inst).unwrap();
         let mut expert = Expert::guided(&env, Guidance::Given { grasp, drop });
         for _ in 0..60 {
             let action = expert.act(&env);
@@ -130,7 +182,7 @@ fn renderers_opened_and_closed_on_several_threads_at_once_render_the_same_frames
     let world = small_world();
     let reference = {
         let mut env = Env::new(Robot::Panda, &world, true).unwrap();
-        env.reset(&Instance::sample(Task::from_id(3).unwrap(), 7));
+        env.reset(&Instance::sample(Task::from_id(3).unwrap(), 7)).unwrap();
         env.render().unwrap()
     };
     std::thread::scope(|s| {
@@ -138,7 +190,7 @@ fn renderers_opened_and_closed_on_several_threads_at_once_render_the_same_frames
             s.spawn(|| {
                 for _ in 0..12 {
                     let mut env = Env::new(Robot::Panda, &world, true).unwrap();
-                    env.reset(&Instance::sample(Task::from_id(3).unwrap(), 7));
+                    env.reset(&Instance::sample(Task::from_id(3).unwrap(), 7)).unwrap();
                     assert!(env.render().unwrap() == reference, "a frame differs from the one rendered alone");
                 }
             });

@@ -24,7 +24,7 @@ pub fn add(plan: &mut Plan, robot: Robot, per_task: usize, cell: &CellConfig) ->
 /// What a collection's key is made of: the whole configuration, less the world's neutral settings.
 fn key_inputs(job: &CollectJob) -> serde_json::Value {
     let mut inputs = serde_json::to_value(job).expect("configurations serialise");
-    omit_when(&mut inputs, &[super::neutral_world()]);
+    omit_when(&mut inputs, &super::neutral_world());
     inputs
 }
 

@@ -42,10 +42,12 @@ fn identity(e: &EvalConfig) -> EvalConfig {
 /// change results and who acts, less the settings added after keys existed at their earlier value.
 fn key_inputs(world: &WorldConfig, eval: &EvalConfig, policy: &str) -> Value {
     let mut inputs = json!({ "world": world, "eval": identity(eval), "policy": policy });
+    let [close, objects] = super::neutral_world();
     omit_when(
         &mut inputs,
         &[
-            super::neutral_world(),
+            close,
+            objects,
             ("eval.videos", json!([])),
             ("eval.control", json!("policy")),
             ("eval.video_width", json!(320)),

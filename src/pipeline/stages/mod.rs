@@ -18,8 +18,11 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// The world's settings that keys leave out at their first value (added after keys existed).
-fn neutral_world() -> (&'static str, serde_json::Value) {
-    ("world.close_on_arrival", serde_json::Value::Bool(false))
+fn neutral_world() -> [(&'static str, serde_json::Value); 2] {
+    [
+        ("world.close_on_arrival", serde_json::Value::Bool(false)),
+        ("world.objects", serde_json::Value::String("base".into())),
+    ]
 }
 
 /// The kinds of cached stages.
