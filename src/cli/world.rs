@@ -8,6 +8,7 @@ use oneshot_lab::sim::env::{Env, GripperYaw, ObjectSet, WorldConfig};
 use oneshot_lab::sim::expert_check::{
     ExpertReport, LibraryReport, expert_check as check, library_check, library_instance,
 };
+use oneshot_lab::sim::object::{Object, Split, environment_objects};
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::task::{Instance, NUM_OBJECTS, NUM_TASKS, ObjectPose, SOURCE_BIN, Task};
 use std::path::{Path, PathBuf};
@@ -131,9 +132,13 @@ pub struct ContactSheetArgs {
     /// Root seed of the layouts.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// `library`: a sheet of the 30 library objects (held-out ones framed in red) instead of layouts.
+    /// `library`: layouts of library environments (odd columns held-out ones, framed in red).
     #[arg(long, value_enum, default_value_t = Objects::Base)]
     pub objects: Objects,
+    /// With `--objects library`: each of the 30 library objects alone in the bin, `--instances` to a row,
+    /// held-out ones framed in red.
+    #[arg(long, requires = "objects")]
+    pub each_object: bool,
     #[command(flatten)]
     pub frames: FrameArgs,
 }
@@ -195,9 +200,10 @@ pub fn collect(a: CollectArgs) -> Result<()> {
 /// `contact-sheet`: first frames of several instances for both robots in one PNG (or the library's objects).
 pub fn contact_sheet(a: ContactSheetArgs) -> Result<()> {
     let world = WorldConfig { objects: a.objects.set(), ..a.frames.world() };
-    match a.objects {
-        Objects::Base => render_sheet(&a.out, a.instances, a.seed, &world)?,
-        Objects::Library => render_library_sheet(&a.out, a.instances, a.seed, &world)?,
+    match (a.objects, a.each_object) {
+        (Objects::Library, true) => render_library_sheet(&a.out, a.instances, a.seed, &world)?,
+        (Objects::Base, true) => bail!("--each-object shows the library's objects: add --objects library"),
+        _ => render_sheet(&a.out, a.instances, a.seed, &world)?,
     }
     println!("wrote {}", a.out.display());
     Ok(())
@@ -236,7 +242,7 @@ fn print_library_report(r: &LibraryReport) {
 /// the held-out ones in red: the library and its split at a glance. `seed` picks each object's place and yaw.
 fn render_library_sheet(out: &Path, columns: usize, seed: u64, world: &WorldConfig) -> Result<()> {
     let columns = columns.max(1);
-    let objects: Vec<_> = oneshot_lab::sim::object::Object::library().collect();
+    let objects: Vec<_> = Object::library().collect();
     let (h, w) = (world.image.height, world.image.width);
     let rows = objects.len().div_ceil(columns);
     let mut sheet = image::RgbImage::new((w * columns) as u32, (h * rows * Robot::ALL.len()) as u32);
@@ -249,11 +255,7 @@ fn render_library_sheet(out: &Path, columns: usize, seed: u64, world: &WorldConf
             let frame = env.render()?;
             let mut img = image::RgbImage::from_raw(w as u32, h as u32, frame).context("frame size")?;
             if object.held_out() {
-                for (x, y, px) in img.enumerate_pixels_mut() {
-                    if x < 2 || y < 2 || x + 2 >= w as u32 || y + 2 >= h as u32 {
-                        *px = image::Rgb([230, 20, 20]);
-                    }
-                }
+                frame_red(&mut img);
             }
             let (col, row) = (i % columns, r * rows + i / columns);
             image::imageops::overlay(&mut sheet, &img, (col * w) as i64, (row * h) as i64);
@@ -276,7 +278,19 @@ fn lone_layout(instance: &Instance) -> [ObjectPose; NUM_OBJECTS] {
     })
 }
 
-/// Renders `instances` first frames per robot (rows: robots, columns: instances) into `out`.
+/// Frames an image in red: a held-out environment or object.
+fn frame_red(img: &mut image::RgbImage) {
+    let (w, h) = img.dimensions();
+    for (x, y, px) in img.enumerate_pixels_mut() {
+        if x < 2 || y < 2 || x + 2 >= w || y + 2 >= h {
+            *px = image::Rgb([230, 20, 20]);
+        }
+    }
+}
+
+/// Renders `instances` first frames per robot (rows: robots, columns: instances) into `out`; in the library
+/// world, column `c` is the environment of seed `seed + c`, of the training objects in even columns and the
+/// held-out ones (framed in red) in odd columns.
 fn render_sheet(out: &Path, instances: usize, seed: u64, world: &WorldConfig) -> Result<()> {
     if instances == 0 {
         bail!("--instances must be at least 1");
@@ -287,9 +301,19 @@ fn render_sheet(out: &Path, instances: usize, seed: u64, world: &WorldConfig) ->
         let mut env = Env::new(*robot, world, true)?;
         for col in 0..instances {
             let task = Task::from_id((col * 5) % NUM_TASKS)?;
-            env.reset(&Instance::sample(task, seed + col as u64))?;
+            let held_out = world.objects == ObjectSet::Library && col % 2 == 1;
+            let kinds = match world.objects {
+                ObjectSet::Base => Object::ALL,
+                ObjectSet::Library => {
+                    environment_objects(if held_out { Split::HeldOut } else { Split::Train }, seed + col as u64)
+                }
+            };
+            env.reset(&Instance::sample_with(task, seed + col as u64, kinds))?;
             let frame = env.render()?;
-            let img = image::RgbImage::from_raw(w as u32, h as u32, frame).context("frame size")?;
+            let mut img = image::RgbImage::from_raw(w as u32, h as u32, frame).context("frame size")?;
+            if held_out {
+                frame_red(&mut img);
+            }
             image::imageops::overlay(&mut sheet, &img, (col * w) as i64, (row * h) as i64);
         }
     }
