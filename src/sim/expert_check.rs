@@ -39,24 +39,35 @@ pub fn expert_check(
     seed: u64,
     max_actions: usize,
 ) -> Result<ExpertReport> {
-    if per_task == 0 || max_actions == 0 {
-        bail!("--per-task ({per_task}) and --max-actions ({max_actions}) must be at least 1");
-    }
+    check_counts(per_task, max_actions)?;
     let mut env = Env::new(robot, world, false)?;
     let mut counts = Vec::with_capacity(NUM_TASKS);
     for t in 0..NUM_TASKS {
         let task = Task::from_id(t)?;
-        let mut c = [0usize; 3];
-        for i in 0..per_task {
-            let ep = run_expert(&mut env, &Instance::sample(task, check_seed(seed, t, i)), max_actions, false)?;
-            let Milestones { reached, picked, placed } = ep.milestones;
-            for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
-                c[k] += hit as usize;
-            }
-        }
-        counts.push(c);
+        let instances = (0..per_task).map(|i| Instance::sample(task, check_seed(seed, t, i)));
+        counts.push(tally(&mut env, instances, max_actions)?);
     }
     Ok(ExpertReport { robot, per_task: counts, instances_per_task: per_task })
+}
+
+/// Refuses a check of no episodes.
+fn check_counts(per_task: usize, max_actions: usize) -> Result<()> {
+    if per_task == 0 || max_actions == 0 {
+        bail!("--per-task ({per_task}) and --max-actions ({max_actions}) must be at least 1");
+    }
+    Ok(())
+}
+
+/// Runs the expert on each of `instances`, counting the episodes that [reached, picked, placed].
+fn tally(env: &mut Env, instances: impl Iterator<Item = Instance>, max_actions: usize) -> Result<[usize; 3]> {
+    let mut c = [0usize; 3];
+    for instance in instances {
+        let Milestones { reached, picked, placed } = run_expert(env, &instance, max_actions, false)?.milestones;
+        for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
+            c[k] += hit as usize;
+        }
+    }
+    Ok(c)
 }
 
 /// Success counts [reached, picked, placed] of the expert moving each library object, in catalogue order.
@@ -74,15 +85,13 @@ pub fn library_instance(object: Object, i: usize, seed: u64) -> Instance {
     let layout_seed = check_seed(seed, 0x100 + object_index(object), i);
     others.shuffle(&mut ChaCha8Rng::seed_from_u64(layout_seed));
     let slot = i % NUM_OBJECTS;
-    let mut kinds = [others[0], others[1], others[2], others[2]];
-    kinds[slot] = object;
-    for (k, other) in (0..NUM_OBJECTS).filter(|&k| k != slot).zip(&others) {
-        kinds[k] = *other;
-    }
+    let mut others = others.into_iter();
+    let kinds = std::array::from_fn(|k| if k == slot { object } else { others.next().expect("three others") });
     let task = Task { object: slot, target: (i + i / NUM_OBJECTS) % NUM_TARGETS };
     Instance::sample_with(task, layout_seed, kinds)
 }
 
+/// Position of `object` in the library.
 fn object_index(object: Object) -> usize {
     Object::library().position(|o| o == object).expect("a library object")
 }
@@ -96,21 +105,12 @@ pub fn library_check(
     seed: u64,
     max_actions: usize,
 ) -> Result<LibraryReport> {
-    if per_object == 0 || max_actions == 0 {
-        bail!("--per-object ({per_object}) and --max-actions ({max_actions}) must be at least 1");
-    }
+    check_counts(per_object, max_actions)?;
     let mut env = Env::new(robot, world, false)?;
     let mut per_object_counts = Vec::new();
     for object in Object::library() {
-        let mut c = [0usize; 3];
-        for i in 0..per_object {
-            let ep = run_expert(&mut env, &library_instance(object, i, seed), max_actions, false)?;
-            let Milestones { reached, picked, placed } = ep.milestones;
-            for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
-                c[k] += hit as usize;
-            }
-        }
-        per_object_counts.push((object, c));
+        let instances = (0..per_object).map(|i| library_instance(object, i, seed));
+        per_object_counts.push((object, tally(&mut env, instances, max_actions)?));
     }
     Ok(LibraryReport { robot, per_object: per_object_counts, instances_per_object: per_object })
 }
