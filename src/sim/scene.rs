@@ -109,7 +109,7 @@ fn objects_xml(objects: &[Object]) -> (String, String) {
         let contact = if Object::ALL.contains(obj) {
             r#"condim="4" friction="1.5 0.01 0.001""#
         } else {
-            r#"condim="6" friction="1.5 0.01 0.005""#
+            r#"condim="6" friction="1.5 0.01 0.02""#
         };
         let top = obj.top().map_or_else(String::new, |top| {
             let z = obj.half_height() + top.half_extents()[2];
