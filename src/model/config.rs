@@ -51,6 +51,18 @@ pub enum ObjectAttentionInput {
     Trunk,
 }
 
+/// What `model.object_attention` asks for in each agent frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectAttentionQuery {
+    /// The task embedding.
+    #[default]
+    Embedding,
+    /// The task head's predicted distribution over the sixteen tasks, detached: once the head is right, the
+    /// one-hot that `localise --object-attention` queries with.
+    TaskHead,
+}
+
 /// Initial value of the action head's learned log-scales.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -161,6 +173,9 @@ pub struct ModelConfig {
     /// Which tokens the object attention reads: `mixed` (after the causal layers) or `trunk` (the trunk's own,
     /// as `localise --object-attention` reads them). Only with `object_attention`.
     pub object_attention_input: ObjectAttentionInput,
+    /// What the object attention queries with: `embedding` (the task embedding) or `task_head` (the task head's
+    /// predicted distribution, detached; needs `task_head`). Only with `object_attention`.
+    pub object_attention_query: ObjectAttentionQuery,
 }
 
 impl Default for ModelConfig {
@@ -194,6 +209,7 @@ impl Default for ModelConfig {
             task_head: false,
             object_attention: false,
             object_attention_input: ObjectAttentionInput::Mixed,
+            object_attention_query: ObjectAttentionQuery::Embedding,
         }
     }
 }
@@ -275,6 +291,9 @@ impl ModelConfig {
         }
         if self.object_attention_input != ObjectAttentionInput::Mixed && !self.object_attention {
             bail!("model.object_attention_input = \"trunk\" chooses the input of model.object_attention: set it true");
+        }
+        if self.object_attention_query == ObjectAttentionQuery::TaskHead && !(self.object_attention && self.task_head) {
+            bail!("model.object_attention_query = \"task_head\" needs model.object_attention and model.task_head");
         }
         if self.agent_frames < 2 {
             bail!("model.agent_frames = {} must be at least 2 (one action)", self.agent_frames);

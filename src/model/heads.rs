@@ -176,8 +176,13 @@ impl PolicyHeads {
             inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
             point: Some(self.point_head.forward(task)),
             poses: self.pose_head.as_ref().map(|(h, o)| workspace_positions(&o.forward(&h.forward(&joint).relu()))),
-            task_logits: self.task_head.as_ref().map(|h| h.forward(task)),
+            task_logits: self.task_logits(task),
         }
+    }
+
+    /// The task head's logits for task embeddings `[B, latent]` (none without `model.task_head`).
+    pub fn task_logits(&self, task: &Tensor) -> Option<Tensor> {
+        self.task_head.as_ref().map(|h| h.forward(task))
     }
 }
 

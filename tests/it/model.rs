@@ -194,6 +194,39 @@ fn the_object_attention_reads_the_trunk_tokens_when_told_and_still_fits_the_gras
 }
 
 #[test]
+fn the_object_attention_can_query_with_the_task_heads_detached_distribution() {
+    use oneshot_lab::model::config::ObjectAttentionQuery;
+    let _rng = seeded(6);
+    let model = ModelConfig {
+        object_attention: true,
+        object_attention_query: ObjectAttentionQuery::TaskHead,
+        task_head: true,
+        pose_head: true,
+        ..tiny()
+    };
+    let (vs, policy) = build_policy(&model, Device::Cpu).unwrap();
+    // The query is sixteen wide: one weight per task and head channel.
+    let query = &vs.variables()["object_attention.query.weight"];
+    assert_eq!(query.size()[1], 16);
+    let b = batch(images(2, 4), images(2, 7), [3, 12]);
+    // The pose loss trains the attention but never the task head through the query (it is detached): the task
+    // head's weights get no gradient from it, only from the task loss.
+    let head = vs.variables()["task_head.weight"].shallow_clone();
+    let size = |g: Tensor| if g.defined() { g.abs().sum(Kind::Float).double_value(&[]) } else { 0.0 };
+    policy.losses(&b, true).pose.backward();
+    assert_eq!(size(head.grad()), 0.0, "the pose loss reached the task head");
+    assert!(size(query.grad()) > 0.0, "the pose loss trains the query");
+    policy.losses(&b, true).task.backward();
+    assert!(size(head.grad()) > 0.0, "the task loss trains the task head");
+    let (first, last) = fitted(&vs, &policy, &b, |l| l.pose);
+    assert!(last < 0.1 * first, "pose loss {first} -> {last}");
+
+    let without_head = ModelConfig { task_head: false, ..model };
+    let err = without_head.validate().unwrap_err().to_string();
+    assert!(err.contains("model.object_attention_query") && err.contains("model.task_head"), "{err}");
+}
+
+#[test]
 fn the_optional_task_head_reads_the_context_and_fits_its_labels() {
     let _rng = seeded(3);
     let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();

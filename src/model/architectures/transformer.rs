@@ -4,7 +4,7 @@ use super::Registration;
 use crate::model::attention::{
     AttentionLayer, AttentionSpec, ConvBlock, conv3d_config, frame_causal_mask, positional_encoding,
 };
-use crate::model::config::{ContextAttention, ModelConfig, ObjectAttentionInput, TaskPass};
+use crate::model::config::{ContextAttention, ModelConfig, ObjectAttentionInput, ObjectAttentionQuery, TaskPass};
 use crate::model::heads::{EmbeddingMlp, ObjectAttention, PolicyHeads, spatial_softmax};
 use crate::model::output::PolicyOutput;
 use crate::model::policy::PolicyNet;
@@ -87,6 +87,8 @@ pub struct TransformerPolicy {
     object_attention: Option<ObjectAttention>,
     /// The tokens it reads.
     object_attention_input: ObjectAttentionInput,
+    /// What it queries with.
+    object_attention_query: ObjectAttentionQuery,
     heads: PolicyHeads,
 }
 
@@ -105,8 +107,13 @@ impl TransformerPolicy {
         let causal =
             (0..config.attention_layers).map(|i| Mixer::new(&(vs / "attention" / i), mixing, spec, true)).collect();
         let (hidden, latent) = (config.embed_hidden, config.latent);
+        let query_width = match config.object_attention_query {
+            ObjectAttentionQuery::Embedding => latent,
+            ObjectAttentionQuery::TaskHead => crate::sim::task::NUM_TASKS as i64,
+        };
         let object_attention = config.object_attention.then(|| {
-            ObjectAttention::new(&(vs / "object_attention"), latent, c, config.attention_heads, config.attention_inner)
+            let vs = vs / "object_attention";
+            ObjectAttention::new(&vs, query_width, c, config.attention_heads, config.attention_inner)
         });
         let frame = latent + object_attention.as_ref().map_or(0, ObjectAttention::width);
         TransformerPolicy {
@@ -120,6 +127,7 @@ impl TransformerPolicy {
             embed: EmbeddingMlp::new(&(vs / "embed"), 2 * c, hidden, latent, config.dropout),
             object_attention,
             object_attention_input: config.object_attention_input,
+            object_attention_query: config.object_attention_query,
             heads: PolicyHeads::new(vs, latent, frame, config),
         }
     }
@@ -170,7 +178,14 @@ impl PolicyNet for TransformerPolicy {
                     ObjectAttentionInput::Mixed => agent_frames,
                     ObjectAttentionInput::Trunk => feats.narrow(1, tc, ta),
                 };
-                Tensor::cat(&[e, attention.forward(&task, &read)], -1)
+                let query = match self.object_attention_query {
+                    ObjectAttentionQuery::Embedding => task.shallow_clone(),
+                    ObjectAttentionQuery::TaskHead => {
+                        let logits = self.heads.task_logits(&task).expect("validated: the task head is on");
+                        logits.detach().softmax(-1, tch::Kind::Float)
+                    }
+                };
+                Tensor::cat(&[e, attention.forward(&query, &read)], -1)
             }
             None => e,
         };
