@@ -415,6 +415,8 @@ mod tests {
         assert!(zero.contains("pretrain.steps"), "{zero}");
         let frozen = err(&format!("[model]\nfreeze_backbone = true\n{grid}"));
         assert!(frozen.contains("needs model.pretrained_backbone or [pretrain]"), "{frozen}");
+        let library = err(&format!("[world]\nobjects = \"library\"\n{grid}"));
+        assert!(library.contains("world.objects = \"library\"") && library.contains("not built yet"), "{library}");
     }
 
     #[test]

@@ -62,6 +62,12 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
         }
         check(crate::train::check_pretrained_trunk(&config.model).context("[pretrain]"))?;
     }
+    if config.world.objects == crate::sim::env::ObjectSet::Library {
+        bail!(
+            "{file}: in {what}: world.objects = \"library\": collections and evaluations in the multi-object world \
+             are not built yet (its scenes and experts are: `oneshot-lab expert-check --objects library`)"
+        );
+    }
     if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() && config.pretrain.is_none() {
         bail!("{file}: in {what}: model.freeze_backbone = true needs model.pretrained_backbone or [pretrain]");
     }
