@@ -63,6 +63,18 @@ pub enum ObjectAttentionQuery {
     TaskHead,
 }
 
+/// What `model.pose_head` reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseHeadInput {
+    /// The task embedding and each frame's features, as the action head reads them.
+    #[default]
+    Joint,
+    /// The task embedding, detached, and the object attention's positions alone: the pose loss then trains the
+    /// attention and the trunk to find the named object, and leaves the task embedding to the other losses.
+    Object,
+}
+
 /// Initial value of the action head's learned log-scales.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -176,6 +188,9 @@ pub struct ModelConfig {
     /// What the object attention queries with: `embedding` (the task embedding) or `task_head` (the task head's
     /// predicted distribution, detached; needs `task_head`). Only with `object_attention`.
     pub object_attention_query: ObjectAttentionQuery,
+    /// What the pose head reads: `joint` (the task embedding and the frame's features) or `object` (the task
+    /// embedding, detached, and the object attention's positions; needs `pose_head` and `object_attention`).
+    pub pose_head_input: PoseHeadInput,
 }
 
 impl Default for ModelConfig {
@@ -210,6 +225,7 @@ impl Default for ModelConfig {
             object_attention: false,
             object_attention_input: ObjectAttentionInput::Mixed,
             object_attention_query: ObjectAttentionQuery::Embedding,
+            pose_head_input: PoseHeadInput::Joint,
         }
     }
 }
@@ -294,6 +310,9 @@ impl ModelConfig {
         }
         if self.object_attention_query == ObjectAttentionQuery::TaskHead && !(self.object_attention && self.task_head) {
             bail!("model.object_attention_query = \"task_head\" needs model.object_attention and model.task_head");
+        }
+        if self.pose_head_input == PoseHeadInput::Object && !(self.pose_head && self.object_attention) {
+            bail!("model.pose_head_input = \"object\" needs model.pose_head and model.object_attention");
         }
         if self.agent_frames < 2 {
             bail!("model.agent_frames = {} must be at least 2 (one action)", self.agent_frames);

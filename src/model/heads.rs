@@ -1,6 +1,6 @@
 //! Small heads of the policy: spatial softmax, the normalised embedding MLP, the 2-D Gaussian point head, and the
 //! action, inverse-dynamics and point heads that every architecture with the paper's losses ends in.
-use super::config::ModelConfig;
+use super::config::{ModelConfig, PoseHeadInput};
 use super::mixture::{MixtureHead, MixtureSpec};
 use super::output::{PointPrediction, PolicyOutput};
 use crate::sim::action::ACTION_RANGES;
@@ -136,16 +136,24 @@ pub struct PolicyHeads {
     inverse: nn::Linear,
     action_head: MixtureHead,
     point_head: PointHead,
-    /// `model.pose_head`: [task, frame] -> hidden -> grasp and drop positions.
+    /// `model.pose_head`: its input (`model.pose_head_input`) -> hidden -> grasp and drop positions.
     pose_head: Option<(nn::Linear, nn::Linear)>,
+    pose_input: PoseHeadInput,
+    /// How many of the frame features' last entries are the object attention's positions.
+    object_width: i64,
     /// `model.task_head`: task embedding -> logits of the sixteen tasks.
     task_head: Option<nn::Linear>,
 }
 
 impl PolicyHeads {
-    /// Heads over `latent`-wide task embeddings and `frame`-wide frame features, under `vs` (parameters `policy`,
-    /// `inverse`, `action_head`, `point_head`, and `pose_head` and `task_head` when the model has them).
-    pub fn new(vs: &nn::Path, latent: i64, frame: i64, config: &ModelConfig) -> PolicyHeads {
+    /// Heads over `latent`-wide task embeddings and `frame`-wide frame features (of which the last `object` are
+    /// the object attention's positions), under `vs` (parameters `policy`, `inverse`, `action_head`,
+    /// `point_head`, and `pose_head` and `task_head` when the model has them).
+    pub fn new(vs: &nn::Path, latent: i64, frame: i64, object: i64, config: &ModelConfig) -> PolicyHeads {
+        let pose_width = match config.pose_head_input {
+            PoseHeadInput::Joint => latent + frame,
+            PoseHeadInput::Object => latent + object,
+        };
         PolicyHeads {
             policy: nn::linear(vs / "policy", latent + frame, config.policy_hidden, Default::default()),
             inverse: nn::linear(vs / "inverse", 2 * frame, config.policy_hidden, Default::default()),
@@ -154,17 +162,20 @@ impl PolicyHeads {
             pose_head: config.pose_head.then(|| {
                 let p = vs / "pose_head";
                 (
-                    nn::linear(&p / "hidden", latent + frame, config.point_hidden, Default::default()),
+                    nn::linear(&p / "hidden", pose_width, config.point_hidden, Default::default()),
                     nn::linear(&p / "out", config.point_hidden, 6, Default::default()),
                 )
             }),
+            pose_input: config.pose_head_input,
+            object_width: object,
             task_head: config
                 .task_head
                 .then(|| nn::linear(vs / "task_head", latent, NUM_TASKS as i64, Default::default())),
         }
     }
 
-    /// Outputs for a task embedding `[B, latent]` and frame features `[B, Ta, frame]`.
+    /// Outputs for a task embedding `[B, latent]` and frame features `[B, Ta, frame]` whose last `object`
+    /// entries (see [`PolicyHeads::new`]) are the object attention's positions.
     pub fn forward(&self, task: &Tensor, frames: &Tensor) -> PolicyOutput {
         let (b, ta) = (frames.size()[0], frames.size()[1]);
         let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
@@ -175,7 +186,17 @@ impl PolicyHeads {
             actions: self.action_head.forward(&hidden),
             inverse: Some(self.action_head.forward(&self.inverse.forward(&pairs).relu())),
             point: Some(self.point_head.forward(task)),
-            poses: self.pose_head.as_ref().map(|(h, o)| workspace_positions(&o.forward(&h.forward(&joint).relu()))),
+            poses: self.pose_head.as_ref().map(|(h, o)| {
+                let input = match self.pose_input {
+                    PoseHeadInput::Joint => joint.shallow_clone(),
+                    PoseHeadInput::Object => {
+                        let width = self.object_width;
+                        let object = frames.narrow(-1, frames.size()[2] - width, width);
+                        Tensor::cat(&[task_per_frame.detach(), object], -1)
+                    }
+                };
+                workspace_positions(&o.forward(&h.forward(&input).relu()))
+            }),
             task_logits: self.task_logits(task),
         }
     }
@@ -248,6 +269,29 @@ mod tests {
         assert!(a.iter().all(|v| (v + 1.0).abs() < 1e-3), "object A at (-1, -1): {a:?}");
         assert!(b.iter().all(|v| (v - 1.0).abs() < 1e-3), "object B at (1, 1): {b:?}");
         assert_eq!(attention.width(), 2);
+    }
+
+    #[test]
+    fn an_object_pose_head_trains_the_object_positions_and_not_the_task_embedding() {
+        let pose_gradients = |input: PoseHeadInput| {
+            let vs = nn::VarStore::new(tch::Device::Cpu);
+            let config = ModelConfig { pose_head: true, pose_head_input: input, ..ModelConfig::default() };
+            let heads = PolicyHeads::new(&vs.root(), 3, 5, 2, &config);
+            let opts = (Kind::Float, tch::Device::Cpu);
+            let task = Tensor::randn([2, 3], opts).set_requires_grad(true);
+            let frames = Tensor::randn([2, 4, 5], opts).set_requires_grad(true);
+            heads.forward(&task, &frames).poses.unwrap().sum(Kind::Float).backward();
+            let per_entry = frames.grad().abs().sum_dim_intlist([0i64, 1].as_slice(), false, Kind::Float);
+            // An undefined gradient: nothing reached the task embedding.
+            let task_grad = task.grad();
+            let task_grad = if task_grad.defined() { task_grad.abs().sum(Kind::Float).double_value(&[]) } else { 0.0 };
+            (task_grad, Vec::<f32>::try_from(per_entry).unwrap())
+        };
+        let (task, frame) = pose_gradients(PoseHeadInput::Object);
+        assert_eq!(task, 0.0, "the pose loss must not reach the task embedding");
+        assert!(frame[..3].iter().all(|g| *g == 0.0) && frame[3..].iter().all(|g| *g > 0.0), "{frame:?}");
+        let (task, frame) = pose_gradients(PoseHeadInput::Joint);
+        assert!(task > 0.0 && frame.iter().all(|g| *g > 0.0), "{task} {frame:?}");
     }
 
     #[test]

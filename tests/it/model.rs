@@ -227,6 +227,43 @@ fn the_object_attention_can_query_with_the_task_heads_detached_distribution() {
 }
 
 #[test]
+fn a_pose_head_reading_the_object_positions_leaves_the_task_embedding_to_the_other_losses() {
+    use oneshot_lab::model::config::{ObjectAttentionInput, ObjectAttentionQuery, PoseHeadInput};
+    let _rng = seeded(7);
+    let model = ModelConfig {
+        object_attention: true,
+        object_attention_input: ObjectAttentionInput::Trunk,
+        object_attention_query: ObjectAttentionQuery::TaskHead,
+        task_head: true,
+        pose_head: true,
+        pose_head_input: PoseHeadInput::Object,
+        ..tiny()
+    };
+    let (vs, policy) = build_policy(&model, Device::Cpu).unwrap();
+    let b = batch(images(2, 4), images(2, 7), [3, 12]);
+    let size = |name: &str| {
+        let g = vs.variables()[name].grad();
+        if g.defined() { g.abs().sum(Kind::Float).double_value(&[]) } else { 0.0 }
+    };
+    // The task path (its attention, convolution and the embedding MLP's output layer) gets nothing from the pose
+    // loss; the attention's keys and the trunk do.
+    policy.losses(&b, true).pose.backward();
+    for name in ["task_conv.weight", "task_head.weight"] {
+        assert_eq!(size(name), 0.0, "the pose loss reached {name}");
+    }
+    assert!(size("object_attention.key.weight") > 0.0 && size("backbone.conv1.weight") > 0.0);
+
+    let without_attention = ModelConfig {
+        object_attention: false,
+        object_attention_input: Default::default(),
+        object_attention_query: Default::default(),
+        ..model
+    };
+    let err = without_attention.validate().unwrap_err().to_string();
+    assert!(err.contains("model.pose_head_input") && err.contains("model.object_attention"), "{err}");
+}
+
+#[test]
 fn the_optional_task_head_reads_the_context_and_fits_its_labels() {
     let _rng = seeded(3);
     let (vs, policy) = build_policy(&tiny(), Device::Cpu).unwrap();

@@ -180,7 +180,7 @@ impl AblatedPolicy {
             to_task: TwoLayer::new(&(vs / "to_task"), task_frames * features, features, latent),
             to_latent: TwoLayer::new(&(vs / "to_latent"), features, latent, latent),
             lstm: lstm.then(|| nn::lstm(vs / "lstm", latent, latent, rnn)),
-            heads: PolicyHeads::new(vs, latent, latent, config),
+            heads: PolicyHeads::new(vs, latent, latent, 0, config),
         }
     }
 

@@ -115,7 +115,8 @@ impl TransformerPolicy {
             let vs = vs / "object_attention";
             ObjectAttention::new(&vs, query_width, c, config.attention_heads, config.attention_inner)
         });
-        let frame = latent + object_attention.as_ref().map_or(0, ObjectAttention::width);
+        let object = object_attention.as_ref().map_or(0, ObjectAttention::width);
+        let frame = latent + object;
         TransformerPolicy {
             trunk,
             dropout: config.dropout,
@@ -128,7 +129,7 @@ impl TransformerPolicy {
             object_attention,
             object_attention_input: config.object_attention_input,
             object_attention_query: config.object_attention_query,
-            heads: PolicyHeads::new(vs, latent, frame, config),
+            heads: PolicyHeads::new(vs, latent, frame, object, config),
         }
     }
 

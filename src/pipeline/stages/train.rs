@@ -39,7 +39,7 @@ fn identity(t: &TrainConfig) -> TrainConfig {
 }
 
 /// Settings added after train keys existed, left out of them at their earlier value.
-fn neutral() -> [(&'static str, Value); 12] {
+fn neutral() -> [(&'static str, Value); 13] {
     [
         ("model.freeze_backbone", json!(false)),
         ("model.pose_head", json!(false)),
@@ -47,6 +47,7 @@ fn neutral() -> [(&'static str, Value); 12] {
         ("model.object_attention", json!(false)),
         ("model.object_attention_input", json!("mixed")),
         ("model.object_attention_query", json!("embedding")),
+        ("model.pose_head_input", json!("joint")),
         ("train.loss.pose", json!(1.0)),
         ("train.loss.task", json!(1.0)),
         ("train.augment_on", json!("host")),
