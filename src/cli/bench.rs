@@ -267,6 +267,7 @@ fn synthetic_batch(c: &BenchConfig, device: Device) -> DeviceBatch {
         actions: Tensor::rand([b, ta - 1, 8], opts) * 2.0 - 1.0,
         points: Tensor::rand([b, 2], opts) * 2.0 - 1.0,
         poses: Tensor::rand([b, 6], opts),
+        pose_weights: Tensor::ones([b, ta], opts),
         tasks: Tensor::randint(16, [b], (Kind::Int64, device)),
     }
 }

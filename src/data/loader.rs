@@ -22,6 +22,10 @@ pub struct Batch {
     pub actions: Vec<f32>,
     pub points: Vec<f32>,
     pub poses: Vec<f32>,
+    /// The weight of each agent frame `[B, Ta]` in the pose loss (all 1 unless [`Batch::pose_at_start_only`]).
+    pub pose_weights: Vec<f32>,
+    /// Each agent window's first frame in its trajectory.
+    pub starts: Vec<usize>,
     /// The task each sample demonstrates.
     pub tasks: Vec<i64>,
     /// Each sample's demonstration and agent trajectory ([`Sample::source`]).
@@ -57,6 +61,20 @@ impl Batch {
         self
     }
 
+    /// Scores the pose loss at a trajectory's first frame only (`train.pose_frames = "first"`): every other
+    /// agent frame gets weight 0.
+    pub fn pose_at_start_only(mut self, on: bool) -> Batch {
+        if on {
+            let ta = self.pose_weights.len() / self.size.max(1);
+            for (b, start) in self.starts.iter().enumerate() {
+                for k in 0..ta {
+                    self.pose_weights[b * ta + k] = if start + k == 0 { 1.0 } else { 0.0 };
+                }
+            }
+        }
+        self
+    }
+
     /// Stacks samples (all drawn in one [`FrameForm`]); raw frames become host tensors, pinned for `pin_for` when
     /// it is a GPU.
     pub fn from_samples(
@@ -69,6 +87,8 @@ impl Batch {
         let size = samples.len();
         let (mut actions, mut points, mut poses) = (vec![], vec![], vec![]);
         let sources = samples.iter().map(|s| s.source).collect();
+        let starts = samples.iter().map(|s| s.start).collect();
+        let pose_weights = vec![1.0; size * model.agent_frames];
         let tasks = samples.iter().map(|s| s.task as i64).collect();
         let (mut context, mut agent, mut bytes, mut agent_bytes, mut draws) = (vec![], vec![], vec![], vec![], vec![]);
         let mut jitter = false;
@@ -106,7 +126,7 @@ impl Batch {
             );
             BatchFrames::Raw { context: host(&bytes, tc), agent: host(&agent_bytes, ta), draws, jitter }
         };
-        Batch { size, frames, actions, points, poses, tasks, sources }
+        Batch { size, frames, actions, points, poses, pose_weights, starts, tasks, sources }
     }
 
     /// Copies the batch to `device` (augmenting raw frames there) with the shapes `model` and frames of
@@ -131,6 +151,7 @@ impl Batch {
             actions: t(&self.actions, &[b, ta - 1, 8]),
             points: t(&self.points, &[b, 2]),
             poses: t(&self.poses, &[b, 6]),
+            pose_weights: t(&self.pose_weights, &[b, ta]),
             tasks: Tensor::from_slice(&self.tasks).to_device(device),
         }
     }
@@ -274,6 +295,8 @@ mod tests {
             actions,
             points: vec![],
             poses: vec![],
+            pose_weights: vec![],
+            starts: vec![],
             tasks: vec![],
             sources: vec![],
         };
@@ -281,5 +304,23 @@ mod tests {
         let q = batch(exact.clone()).quantise_actions(128).actions;
         assert_eq!(q, [127.0 / 128.0, -127.0 / 128.0, 0.5, 0.0, 0.0, 1.0]);
         assert_eq!(batch(exact.clone()).quantise_actions(0).actions, exact);
+    }
+
+    #[test]
+    fn the_pose_loss_can_be_kept_to_each_trajectorys_first_frame() {
+        // Two samples of three agent frames: one window starts the trajectory, the other at its frame 3.
+        let batch = || Batch {
+            size: 2,
+            frames: BatchFrames::Normalised { context: vec![], agent: vec![] },
+            actions: vec![],
+            points: vec![],
+            poses: vec![],
+            pose_weights: vec![1.0; 6],
+            starts: vec![0, 3],
+            tasks: vec![],
+            sources: vec![],
+        };
+        assert_eq!(batch().pose_at_start_only(true).pose_weights, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        assert_eq!(batch().pose_at_start_only(false).pose_weights, [1.0; 6]);
     }
 }

@@ -299,7 +299,16 @@ impl PairDataset {
             .collect();
         let [col, row] = agent.eef_pixel[start + model.agent_frames - 1];
         let point = [2.0 * col / w as f32 - 1.0, 2.0 * row / h as f32 - 1.0];
-        Ok(Sample { task, source: trajectory, context, agent: frames, actions, point, poses: agent.grasp_and_drop() })
+        Ok(Sample {
+            task,
+            source: trajectory,
+            start,
+            context,
+            agent: frames,
+            actions,
+            point,
+            poses: agent.grasp_and_drop(),
+        })
     }
 }
 
@@ -336,6 +345,8 @@ pub struct Sample {
     pub task: usize,
     /// The demonstration and the agent trajectory it was drawn from (see [`PairDataset::trajectory`]).
     pub source: [usize; 2],
+    /// The agent window's first frame in its trajectory.
+    pub start: usize,
     /// The demonstrator's `Tc` frames.
     pub context: FrameData,
     /// The agent's `Ta` frames.

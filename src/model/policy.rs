@@ -59,8 +59,11 @@ pub fn head_losses(out: &PolicyOutput, batch: &DeviceBatch, spec: MixtureSpec) -
         inverse: out.inverse.as_ref().map_or_else(zero, |p| mixture_nll(p, &batch.actions, spec)),
         point: out.point.as_ref().map_or_else(zero, |p| point_nll(p, &batch.points)),
         pose: out.poses.as_ref().map_or_else(zero, |p| {
+            // The squared error's mean over the frames the batch weights (all of them, or a trajectory's first).
             let target = batch.poses.unsqueeze(1).expand_as(p);
-            p.to_kind(Kind::Float).mse_loss(&target, tch::Reduction::Mean)
+            let per_frame = (p.to_kind(Kind::Float) - target).square().mean_dim([-1i64].as_slice(), false, Kind::Float);
+            let weights = batch.pose_weights.to_kind(Kind::Float);
+            (per_frame * &weights).sum(Kind::Float) / weights.sum(Kind::Float).clamp_min(1.0)
         }),
         task: out
             .task_logits

@@ -1,5 +1,6 @@
 //! Training settings, with the paper's values as defaults.
 use crate::data::augment::Augmentation;
+use crate::data::loader::Batch;
 use crate::data::pairs::{AUTHORS_WINDOW_END, Windows};
 use crate::model::config::ModelConfig;
 use crate::model::policy::Losses;
@@ -35,6 +36,12 @@ impl TrainConfig {
     /// Where training windows are drawn.
     pub fn windows(&self) -> Windows {
         Windows::Training { start: self.window_start }
+    }
+
+    /// A batch's targets as this training scores them: actions quantised (`train.action_resolution`), the pose
+    /// loss's frames chosen (`train.pose_frames`).
+    pub fn targets(&self, batch: Batch) -> Batch {
+        batch.quantise_actions(self.action_resolution).pose_at_start_only(self.pose_frames == PoseFrames::First)
     }
 }
 
@@ -76,6 +83,18 @@ pub enum MemoryFormat {
     Contiguous,
     /// Channels last (NHWC strides): faster convolutions, batch norm and pooling on CPU and on tensor cores.
     ChannelsLast,
+}
+
+/// Which agent frames the pose loss (`model.pose_head`) scores.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseFrames {
+    /// Every frame of the window.
+    #[default]
+    Window,
+    /// Only a trajectory's first frame (windows drawn at its start): there the arm has not moved, so only the
+    /// picture can say where the named object lies; later frames also show where the arm is heading.
+    First,
 }
 
 /// Where training frames are augmented and normalised.
@@ -152,6 +171,8 @@ pub struct TrainConfig {
     /// units, truncated towards zero, as the authors' recorded actions are (`normalize_action` in
     /// `custom_ik_wrapper.py`: 128); 0 keeps them exact.
     pub action_resolution: u32,
+    /// Which agent frames the pose loss scores: `window` (all) or `first` (a trajectory's first frame only).
+    pub pose_frames: PoseFrames,
     /// Batches prepared ahead of the training step on a background thread; 0 prepares each when it is needed
     /// (faster where the cores are few: the two do not compete).
     pub prefetch: usize,
@@ -179,6 +200,7 @@ impl Default for TrainConfig {
             loss: LossWeights::default(),
             window_start: AUTHORS_WINDOW_START,
             action_resolution: AUTHORS_ACTION_RESOLUTION,
+            pose_frames: PoseFrames::Window,
             prefetch: 4,
         }
     }
@@ -272,6 +294,16 @@ pub fn check_heads(model: &ModelConfig, train: &TrainConfig) -> Result<()> {
             "train.loss.pose = {} weights a head model.architecture = {:?} lacks: set model.pose_head = true",
             train.loss.pose,
             model.architecture.0
+        );
+    }
+    if !has_pose && train.pose_frames != PoseFrames::Window {
+        bail!(
+            "train.pose_frames = \"first\" chooses the frames of a pose head the model lacks: set model.pose_head = true"
+        );
+    }
+    if train.pose_frames == PoseFrames::First && train.window_start == 0.0 {
+        bail!(
+            "train.pose_frames = \"first\" scores windows at their trajectory's start: train.window_start = 0 draws none"
         );
     }
     if !model.task_head && train.loss.task != 1.0 {

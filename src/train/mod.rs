@@ -206,7 +206,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let val: Vec<DeviceBatch> = (0..config.val_batches)
         .map(|k| {
             build_batch(&data, Split::Val, model, config.batch_size, config.seed, k, config.windows(), None, augment_at)
-                .map(|b| b.quantise_actions(config.action_resolution).to_device(model, h, w, device))
+                .map(|b| config.targets(b).to_device(model, h, w, device))
         })
         .collect::<Result<_>>()?;
 
@@ -235,7 +235,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         tch::manual_seed(derive_seed("dropout", &[config.seed, step]) as i64);
         opt.set_lr(config.lr_at(step));
         let batch: Batch = loader.next_batch()?;
-        let batch = batch.quantise_actions(config.action_resolution).to_device(model, h, w, device);
+        let batch = config.targets(batch).to_device(model, h, w, device);
         let l = {
             let _precision = config.precision.scope(device);
             policy.losses(&batch, true)

@@ -29,6 +29,7 @@ fn batch() -> DeviceBatch {
         actions: Tensor::rand([2, 6, 8], opts) * 2.0 - 1.0,
         points: Tensor::rand([2, 2], opts) * 2.0 - 1.0,
         poses: Tensor::rand([2, 6], opts),
+        pose_weights: Tensor::ones([2, 7], opts),
         tasks: Tensor::from_slice(&[3i64, 12]),
     }
 }

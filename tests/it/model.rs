@@ -21,12 +21,14 @@ fn images(b: i64, t: i64) -> Tensor {
 
 /// A batch of two samples with these frames and tasks, and random actions, points and poses.
 fn batch(context: Tensor, agent: Tensor, tasks: [i64; 2]) -> DeviceBatch {
+    let frames = agent.size()[1];
     DeviceBatch {
         context,
         agent,
         actions: Tensor::rand([2, 6, 8], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
         points: Tensor::rand([2, 2], (Kind::Float, Device::Cpu)) * 2.0 - 1.0,
         poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
+        pose_weights: Tensor::ones([2, frames], (Kind::Float, Device::Cpu)),
         tasks: Tensor::from_slice(&tasks),
     }
 }
@@ -142,6 +144,36 @@ fn the_optional_pose_head_is_causal_and_fits_its_targets() {
         let err = model.validate().unwrap_err().to_string();
         assert!(err.contains("model.pose_head") && err.contains(name), "{err}");
     }
+}
+
+#[test]
+fn the_pose_loss_scores_only_the_frames_its_weights_keep() {
+    use oneshot_lab::model::mixture::MixtureSpec;
+    use oneshot_lab::model::policy::head_losses;
+    use oneshot_lab::train::config::PoseFrames;
+    let _rng = seeded(8);
+    let model = ModelConfig { pose_head: true, ..tiny() };
+    let (_vs, policy) = build_policy(&model, Device::Cpu).unwrap();
+    let mut b = batch(images(2, 4), images(2, 7), [3, 12]);
+    let out = policy.forward_t(&b.context, &b.agent, false);
+    let poses = out.poses.as_ref().unwrap();
+    let squared = (poses - b.poses.unsqueeze(1)).square();
+    let pose = |b: &DeviceBatch| head_losses(&out, b, MixtureSpec::for_model(&model)).pose.double_value(&[]);
+    // All frames: the plain mean squared error.
+    assert!((pose(&b) - squared.mean(Kind::Float).double_value(&[])).abs() < 1e-7);
+    // Only the first sample's first frame.
+    let keep = Tensor::zeros([2, 7], (Kind::Float, Device::Cpu));
+    let _ = keep.get(0).get(0).fill_(1.0);
+    b.pose_weights = keep;
+    let first = squared.get(0).get(0).mean(Kind::Float).double_value(&[]);
+    assert!((pose(&b) - first).abs() < 1e-7, "{} against {first}", pose(&b));
+
+    let first_only = TrainConfig { pose_frames: PoseFrames::First, ..Default::default() };
+    let err = check_heads(&tiny(), &first_only).unwrap_err().to_string();
+    assert!(err.contains("train.pose_frames") && err.contains("model.pose_head"), "{err}");
+    let never_at_start = TrainConfig { window_start: 0.0, ..first_only };
+    let err = check_heads(&model, &never_at_start).unwrap_err().to_string();
+    assert!(err.contains("train.window_start = 0"), "{err}");
 }
 
 #[test]

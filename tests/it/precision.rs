@@ -66,6 +66,7 @@ fn a_bf16_step_stays_close_to_the_fp32_step_for_every_architecture() {
             actions: Tensor::rand([2, 6, 8], opts) * 2.0 - 1.0,
             points: Tensor::rand([2, 2], opts) * 2.0 - 1.0,
             poses: Tensor::rand([2, 6], opts),
+            pose_weights: Tensor::ones([2, 7], opts),
             tasks: Tensor::from_slice(&[3i64, 12]),
         };
         let (loss32, grad32) = step(&vs, &policy, &batch, Precision::Fp32);

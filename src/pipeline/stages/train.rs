@@ -39,7 +39,7 @@ fn identity(t: &TrainConfig) -> TrainConfig {
 }
 
 /// Settings added after train keys existed, left out of them at their earlier value.
-fn neutral() -> [(&'static str, Value); 13] {
+fn neutral() -> [(&'static str, Value); 14] {
     [
         ("model.freeze_backbone", json!(false)),
         ("model.pose_head", json!(false)),
@@ -54,6 +54,7 @@ fn neutral() -> [(&'static str, Value); 13] {
         ("train.precision", json!("fp32")),
         ("train.window_start", json!(AUTHORS_WINDOW_START)),
         ("train.action_resolution", json!(0)),
+        ("train.pose_frames", json!("window")),
     ]
 }
 
