@@ -187,8 +187,9 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
     let mut data = PairDataset::open(&a.demos, &a.agents, TrainConfig::default().val_fraction, None)?;
     let open_seconds = opened.elapsed().as_secs_f64();
     if a.decode_on_use {
-        data.decode_on_use();
+        data.hold_decoded(0)?;
     }
+    let (held, frames_in_all) = data.frames_held();
     let model = ModelConfig::default();
     let augmentation = Augmentation::default();
     let augment = (!a.no_augment).then_some(&augmentation);
@@ -203,7 +204,7 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
          threads",
         data.height,
         data.width,
-        if data.frames_in_memory() { "held decoded" } else { "JPEG decoded on use" },
+        format_args!("{held} of {frames_in_all} held decoded, the rest JPEG-decoded on use"),
         format_args!("{open_seconds:.1}"),
         a.batch,
         frames,

@@ -17,8 +17,6 @@ use std::path::Path;
 /// Probability that a training window is forced to the start of its trajectory, and (separately) to its end: the
 /// authors' 0.2 each (`train.window_start` changes the first).
 pub const AUTHORS_WINDOW_END: f64 = 0.2;
-/// Frames are decoded once when opening if all of them fit in this many bytes, else on every use.
-const DECODE_AHEAD_BYTES: usize = 4 << 30;
 
 /// Training or validation trajectories.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -31,8 +29,9 @@ pub enum Split {
 pub struct PairDataset {
     demos: Vec<Trajectory>,
     agents: Vec<Trajectory>,
-    /// Decoded RGB frames `[demos, agents][trajectory][step]`, when they fit in memory.
-    decoded: Option<[Vec<Vec<Vec<u8>>>; 2]>,
+    /// Decoded RGB frames `[demos, agents][trajectory][step]` of the trajectories the frame budget holds
+    /// ([`super::frame_cache`]); the others decode their JPEG on every use.
+    decoded: [Vec<Option<Vec<Vec<u8>>>>; 2],
     /// `[split][task]` -> indices into `demos` / `agents`.
     demo_index: [Vec<Vec<usize>>; 2],
     agent_index: [Vec<Vec<usize>>; 2],
@@ -138,15 +137,6 @@ impl PairDataset {
                 );
             }
         }
-        let frames: usize = demos.iter().chain(&agents).map(Trajectory::len).sum();
-        let decoded = if frames * di.rgb_len() <= DECODE_AHEAD_BYTES {
-            let decode = |trajs: &[Trajectory]| -> Result<Vec<Vec<Vec<u8>>>> {
-                trajs.par_iter().map(|t| (0..t.len()).map(|k| t.frame_rgb(k)).collect()).collect()
-            };
-            Some([decode(&demos)?, decode(&agents)?])
-        } else {
-            None
-        };
         for t in 0..NUM_TASKS {
             for s in 0..2 {
                 if demo_index[s][t].is_empty() != agent_index[s][t].is_empty() {
@@ -154,17 +144,19 @@ impl PairDataset {
                 }
             }
         }
-        Ok(PairDataset {
+        let mut data = PairDataset {
+            decoded: [vec![None; demos.len()], vec![None; agents.len()]],
             demos,
             agents,
-            decoded,
             demo_index,
             agent_index,
             world: dm.config.world.clone(),
             jpeg_quality: dm.config.settings.jpeg_quality,
             height: di.height,
             width: di.width,
-        })
+        };
+        data.hold_decoded(super::frame_cache::budget()?)?;
+        Ok(data)
     }
 
     /// The demonstration and the agent trajectory a sample was drawn from ([`Sample::source`]).
@@ -172,21 +164,43 @@ impl PairDataset {
         (&self.demos[source[0]], &self.agents[source[1]])
     }
 
-    /// Whether every frame was decoded when opening (else each use decodes its JPEG).
-    pub fn frames_in_memory(&self) -> bool {
-        self.decoded.is_some()
+    /// Holds decoded the frames of as many whole trajectories as fit in `budget` bytes, the agent's first (a
+    /// sample shows more agent frames than demonstrator frames), and drops the rest: those decode their JPEG on
+    /// every use. A budget of 0 decodes every frame on use.
+    pub fn hold_decoded(&mut self, budget: usize) -> Result<()> {
+        let frame_bytes = 3 * self.height * self.width;
+        let mut left = budget;
+        let mut chosen: [Vec<bool>; 2] = [vec![false; self.demos.len()], vec![false; self.agents.len()]];
+        for robot in [1, 0] {
+            for (k, t) in [&self.demos, &self.agents][robot].iter().enumerate() {
+                let bytes = t.len() * frame_bytes;
+                if bytes <= left {
+                    left -= bytes;
+                    chosen[robot][k] = true;
+                }
+            }
+        }
+        for robot in [0, 1] {
+            let trajs = [&self.demos, &self.agents][robot];
+            self.decoded[robot] = trajs
+                .par_iter()
+                .zip(&chosen[robot])
+                .map(|(t, &keep)| keep.then(|| (0..t.len()).map(|k| t.frame_rgb(k)).collect()).transpose())
+                .collect::<Result<_>>()?;
+        }
+        Ok(())
     }
 
-    /// Drops the frames decoded when opening, so that each use decodes its JPEG: what a dataset larger than the
-    /// decode-ahead budget does (for measuring that path on a small collection).
-    pub fn decode_on_use(&mut self) {
-        self.decoded = None;
+    /// Frames held decoded, and frames in all.
+    pub fn frames_held(&self) -> (usize, usize) {
+        let held = self.decoded.iter().flatten().flatten().map(Vec::len).sum();
+        (held, self.demos.iter().chain(&self.agents).map(Trajectory::len).sum())
     }
 
     /// RGB frame `t` of trajectory `k` of the demonstrator (`robot` 0) or agent (1) collection.
     fn rgb(&self, robot: usize, k: usize, t: usize) -> Result<std::borrow::Cow<'_, [u8]>> {
-        Ok(match &self.decoded {
-            Some(d) => std::borrow::Cow::Borrowed(&d[robot][k][t]),
+        Ok(match &self.decoded[robot][k] {
+            Some(frames) => std::borrow::Cow::Borrowed(&frames[t]),
             None => std::borrow::Cow::Owned([&self.demos, &self.agents][robot][k].frame_rgb(t)?),
         })
     }

@@ -162,9 +162,15 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
         collect(&tiny(robot, vec![0, 6], 2), &dir.join(robot.to_string()), 2, false).unwrap();
     }
     let open = || PairDataset::open(&dir.join("sawyer"), &dir.join("panda"), 0.1, None).unwrap();
-    let (held, mut on_use) = (open(), open());
-    on_use.decode_on_use();
-    assert!(held.frames_in_memory() && !on_use.frames_in_memory());
+    let (held, mut on_use, mut part) = (open(), open(), open());
+    on_use.hold_decoded(0).unwrap();
+    let (all, frames) = held.frames_held();
+    assert!(all == frames && frames > 0 && on_use.frames_held() == (0, frames));
+    // A budget of a third of the frames holds whole trajectories up to it, the agent's first.
+    let frame_bytes = 3 * held.height * held.width;
+    part.hold_decoded(frames / 3 * frame_bytes).unwrap();
+    let (some, _) = part.frames_held();
+    assert!(some > 0 && some <= frames / 3, "{some} of {frames} held");
     let (model, aug) = (ModelConfig::default(), Augmentation::default());
     let batch = |data: &PairDataset, at: AugmentAt| {
         let b =
@@ -173,6 +179,8 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
     };
     let (a, b) = (batch(&held, AugmentAt::Host), batch(&on_use, AugmentAt::Host));
     assert!(a.context.equal(&b.context) && a.agent.equal(&b.agent) && a.actions.equal(&b.actions));
+    let c = batch(&part, AugmentAt::Host);
+    assert!(a.context.equal(&c.context) && a.agent.equal(&c.agent));
 
     // Augmenting on the training device (here the CPU's tensor kernels) makes the same batch.
     let d = batch(&held, AugmentAt::Device(Device::Cpu));
