@@ -273,6 +273,7 @@ pub fn localise(a: LocaliseArgs) -> Result<()> {
             AugmentArg::Authors => Some(Augmentation::default()),
             AugmentArg::Colour => Some(Augmentation { crop: [0.0; 2], shift: [0.0; 2], ..Augmentation::default() }),
         },
+        ..defaults
     };
     pretrain.validate()?;
     let mut config = pretrain.localise((a.backbone_width, a.backbone_stages), None, a.seed, a.save_trunk.clone());

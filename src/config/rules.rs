@@ -61,6 +61,17 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
             );
         }
         check(crate::train::check_pretrained_trunk(&config.model).context("[pretrain]"))?;
+        let m = &config.model;
+        let queries_with_tasks = m.object_attention
+            && m.object_attention_input == crate::model::config::ObjectAttentionInput::Trunk
+            && m.object_attention_query == crate::model::config::ObjectAttentionQuery::TaskHead;
+        if config.pretrain.as_ref().is_some_and(|p| p.object_attention_steps > 0) && !queries_with_tasks {
+            bail!(
+                "{file}: in {what}: pretrain.object_attention_steps trains an object attention over the trunk queried \
+                 by task: set model.object_attention = true, model.object_attention_input = \"trunk\" and \
+                 model.object_attention_query = \"task_head\""
+            );
+        }
     }
     if config.world.objects == crate::sim::env::ObjectSet::Library {
         bail!(

@@ -191,6 +191,11 @@ pub struct ModelConfig {
     /// What the pose head reads: `joint` (the task embedding and the frame's features) or `object` (the task
     /// embedding, detached, and the object attention's positions; needs `pose_head` and `object_attention`).
     pub pose_head_input: PoseHeadInput,
+    /// Starting weights of the object attention (`object_attention.*`), set by the train stage from a `[pretrain]`
+    /// whose `object_attention_steps` trained one; not an experiment-file key.
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub pretrained_object_attention: Option<String>,
 }
 
 impl Default for ModelConfig {
@@ -226,6 +231,7 @@ impl Default for ModelConfig {
             object_attention_input: ObjectAttentionInput::Mixed,
             object_attention_query: ObjectAttentionQuery::Embedding,
             pose_head_input: PoseHeadInput::Joint,
+            pretrained_object_attention: None,
         }
     }
 }

@@ -43,22 +43,7 @@ pub fn load(vs: &mut nn::VarStore, path: &Path) -> Result<()> {
 /// Copies matching `backbone.*` parameters from a torchvision-named safetensors file: ResNet-18's, or VGG-16's
 /// first block for DAML.
 pub fn load_backbone(vs: &mut nn::VarStore, path: &Path) -> Result<usize> {
-    let stored =
-        Tensor::read_safetensors(path).with_context(|| format!("reading pretrained weights {}", path.display()))?;
-    let mut vars = vs.variables();
-    let mut copied = 0;
-    tch::no_grad(|| -> Result<()> {
-        for (name, tensor) in &stored {
-            if let Some(var) = vars.get_mut(&format!("backbone.{name}")) {
-                if var.size() != tensor.size() {
-                    bail!("{}: `{name}` is {:?}, the backbone expects {:?}", path.display(), tensor.size(), var.size());
-                }
-                var.copy_(tensor);
-                copied += 1;
-            }
-        }
-        Ok(())
-    })?;
+    let copied = load_under(vs, path, "backbone.")?;
     if copied == 0 {
         bail!(
             "{} holds no parameter of this backbone (expected torchvision names like `layer1.0.conv1.weight` for \
@@ -66,6 +51,28 @@ pub fn load_backbone(vs: &mut nn::VarStore, path: &Path) -> Result<usize> {
             path.display()
         );
     }
+    Ok(copied)
+}
+
+/// Copies the weights of `path` into the variables of `vs` named `prefix` + their stored name; returns how many
+/// it copied (an error if one's shape differs).
+pub fn load_under(vs: &mut nn::VarStore, path: &Path, prefix: &str) -> Result<usize> {
+    let stored =
+        Tensor::read_safetensors(path).with_context(|| format!("reading pretrained weights {}", path.display()))?;
+    let mut vars = vs.variables();
+    let mut copied = 0;
+    tch::no_grad(|| -> Result<()> {
+        for (name, tensor) in &stored {
+            if let Some(var) = vars.get_mut(&format!("{prefix}{name}")) {
+                if var.size() != tensor.size() {
+                    bail!("{}: `{name}` is {:?}, the network expects {:?}", path.display(), tensor.size(), var.size());
+                }
+                var.copy_(tensor);
+                copied += 1;
+            }
+        }
+        Ok(())
+    })?;
     Ok(copied)
 }
 

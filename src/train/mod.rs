@@ -75,6 +75,11 @@ pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::Var
     if let Some(path) = &model.pretrained_backbone {
         checkpoint::load_backbone(&mut vs, Path::new(path)).context("model.pretrained_backbone")?;
     }
+    if let Some(path) = &model.pretrained_object_attention
+        && checkpoint::load_under(&mut vs, Path::new(path), "")? == 0
+    {
+        bail!("{path} holds no weight of this model's object attention (model.object_attention = true?)");
+    }
     if model.freeze_backbone {
         for (_, var) in vs.variables().into_iter().filter(|(name, _)| name.starts_with("backbone.")) {
             let _ = var.set_requires_grad(false);

@@ -55,11 +55,14 @@ pub struct LocaliseConfig {
     pub object_attention: bool,
     /// Start the trunk from these weights (a saved trunk, torchvision names) rather than from scratch.
     pub init_trunk: Option<PathBuf>,
+    /// The object attention's heads and inner width.
+    pub attention_shape: (i64, i64),
+    /// Where to write the trained object attention's weights (the policy's `object_attention.*` names).
+    pub attention_out: Option<PathBuf>,
 }
 
-/// Heads and inner width of the check's object attention.
-const ATTENTION_HEADS: i64 = 4;
-const ATTENTION_INNER: i64 = 64;
+/// Heads and inner width of the check's object attention (`localise --object-attention`).
+pub const ATTENTION_SHAPE: (i64, i64) = (4, 64);
 
 /// The `[pretrain]` section of an experiment: a stage that trains the policy's image trunk on this check's
 /// regression over the agent collection's first frames, then starts the policy from it in place of
@@ -78,12 +81,23 @@ pub struct PretrainConfig {
     pub lr: f64,
     /// Training frames are augmented with these ranges; absent, not at all.
     pub augmentation: Option<Augmentation>,
+    /// After `steps`, this many more steps train the trunk to find the object the task names, through an object
+    /// attention queried with the task's one-hot (`localise --object-attention`), saved for a policy whose
+    /// `model.object_attention_query = "task_head"` asks with the task head's prediction. 0: none.
+    pub object_attention_steps: u64,
 }
 
 impl Default for PretrainConfig {
     /// The trunk of the learning recipe (docs/research/recipe.md); the `localise` command's defaults too.
     fn default() -> Self {
-        PretrainConfig { target: LocaliseTarget::Objects, steps: 2000, batch: 32, lr: 1e-3, augmentation: None }
+        PretrainConfig {
+            target: LocaliseTarget::Objects,
+            steps: 2000,
+            batch: 32,
+            lr: 1e-3,
+            augmentation: None,
+            object_attention_steps: 0,
+        }
     }
 }
 
@@ -124,7 +138,32 @@ impl PretrainConfig {
             trunk_out,
             object_attention: false,
             init_trunk: None,
+            attention_shape: ATTENTION_SHAPE,
+            attention_out: None,
         }
+    }
+
+    /// The second phase's settings (`object_attention_steps`): the grasp target through an object attention of
+    /// `attention_shape`, the trunk starting from and saved back to `trunk`, the attention saved to
+    /// `attention_out`. None without that phase.
+    pub fn attention_phase(
+        &self,
+        first: &LocaliseConfig,
+        attention_shape: (i64, i64),
+        trunk: PathBuf,
+        attention_out: PathBuf,
+    ) -> Option<LocaliseConfig> {
+        (self.object_attention_steps > 0).then(|| LocaliseConfig {
+            steps: self.object_attention_steps,
+            report_every: (self.object_attention_steps / 10).max(1),
+            target: LocaliseTarget::Grasp,
+            object_attention: true,
+            init_trunk: Some(trunk.clone()),
+            trunk_out: Some(trunk),
+            attention_shape,
+            attention_out: Some(attention_out),
+            ..first.clone()
+        })
     }
 }
 
@@ -247,8 +286,8 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
             &(&root / "object_attention"),
             NUM_TASKS as i64,
             channels,
-            ATTENTION_HEADS,
-            ATTENTION_INNER,
+            config.attention_shape.0,
+            config.attention_shape.1,
         )
     });
     let features = 2 * channels
@@ -312,7 +351,10 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         opt.backward_step(&loss);
     }
     if let Some(path) = &config.trunk_out {
-        save_trunk(&vs, path)?;
+        save_variables(&vs, "backbone.", false, path)?;
+    }
+    if let Some(path) = &config.attention_out {
+        save_variables(&vs, "object_attention.", true, path)?;
     }
     Ok(LocaliseReport {
         train_frames: n as usize,
@@ -324,12 +366,15 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
     })
 }
 
-/// Writes the `backbone.*` variables of `vs` to `path` under their torchvision names (the prefix dropped).
-fn save_trunk(vs: &nn::VarStore, path: &Path) -> Result<()> {
+/// Writes the variables of `vs` whose names start with `prefix` to `path`, the prefix kept or dropped (the trunk's
+/// are written under their torchvision names, `backbone.` dropped).
+fn save_variables(vs: &nn::VarStore, prefix: &str, keep_prefix: bool, path: &Path) -> Result<()> {
+    let strip = if keep_prefix { 0 } else { prefix.len() };
     let named: Vec<(String, Tensor)> = vs
         .variables()
         .into_iter()
-        .filter_map(|(name, t)| name.strip_prefix("backbone.").map(|n| (n.to_string(), t.to_device(Device::Cpu))))
+        .filter(|(name, _)| name.starts_with(prefix))
+        .map(|(name, t)| (name[strip..].to_string(), t.to_device(Device::Cpu)))
         .collect();
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;

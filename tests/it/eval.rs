@@ -129,6 +129,8 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         augmentation: None,
         object_attention: false,
         init_trunk: None,
+        attention_shape: oneshot_lab::train::pretrain::ATTENTION_SHAPE,
+        attention_out: None,
     };
     let trunk_file = dir.join("trunks").join("trunk.safetensors");
     let mut last_train = vec![];

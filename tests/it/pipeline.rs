@@ -334,6 +334,59 @@ fn a_pretrain_section_trains_the_trunk_once_per_seed_and_training_starts_from_it
 }
 
 #[test]
+fn a_pretrained_object_attention_is_where_the_policys_attention_starts() {
+    let dir = scratch("pipeline-pretrain-attention");
+    let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
+    let attending = "[variants.attending]\npretrain = { steps = 4, batch = 4, object_attention_steps = 4 }\n\
+        model.object_attention = true\nmodel.object_attention_input = \"trunk\"\n\
+        model.object_attention_query = \"task_head\"\nmodel.task_head = true\ntrain.lr = 1e-9\n";
+    let body = experiment("[0]", 90, 4).replace(r#"variants = ["full", "no_point"]"#, r#"variants = ["attending"]"#);
+    std::fs::write(&file, body.clone() + attending).unwrap();
+    let out = run(&file, &store);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let conn = db(&store);
+    let (pretrain, artifact): (String, String) = conn
+        .query_row("SELECT key, artifact FROM stages WHERE kind = 'pretrain' AND status = 'done'", [], |r| {
+            Ok((r.get(0)?, r.get(1)?))
+        })
+        .unwrap();
+    let held_out: f64 = conn
+        .query_row(
+            "SELECT value FROM metrics WHERE stage_key = ?1 AND name = 'attention_held_out_error_x'",
+            [&pretrain],
+            |r| r.get(0),
+        )
+        .unwrap();
+    assert!(held_out > 0.0 && held_out < 1.0, "a held-out error in metres: {held_out}");
+    let train_artifact: String = conn
+        .query_row("SELECT artifact FROM stages WHERE kind = 'train' AND status = 'done'", [], |r| r.get(0))
+        .unwrap();
+    let read = |p: PathBuf| -> std::collections::HashMap<String, tch::Tensor> {
+        tch::Tensor::read_safetensors(&p).unwrap().into_iter().collect()
+    };
+    let attention = read(store.join(&artifact).join("object_attention.safetensors"));
+    let policy = read(store.join(&train_artifact).join("model.safetensors"));
+    // Sixteen task entries feed the query; at a learning rate of 1e-9 the policy's attention is still the
+    // pretrained one.
+    assert_eq!(attention["object_attention.query.weight"].size()[1], 16);
+    assert_eq!(attention.len(), 2, "{:?}", attention.keys());
+    for (name, weights) in &attention {
+        let drift = (weights - &policy[name]).abs().max().double_value(&[]);
+        assert!(drift < 1e-5, "{name} moved {drift} from the pretrained weights");
+    }
+
+    // Without an attention queried by task the setting is refused, naming it.
+    let plain = attending
+        .replace("model.object_attention = true\n", "")
+        .replace("model.object_attention_input = \"trunk\"\nmodel.object_attention_query = \"task_head\"\n", "");
+    std::fs::write(&file, body + &plain).unwrap();
+    let out = oneshot().args(["plan", file.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("pretrain.object_attention_steps"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn two_concurrent_runs_execute_each_stage_once() {
     let dir = scratch("pipeline-concurrent");
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));

@@ -182,6 +182,12 @@ pub enum MetricName {
     /// Predicting the training layouts' mean there instead (metres).
     TrunkMeanErrorX,
     TrunkMeanErrorY,
+    /// With `pretrain.object_attention_steps`: the grasp position through the object attention on held-out
+    /// layouts, and each task's mean there (metres).
+    AttentionHeldOutErrorX,
+    AttentionHeldOutErrorY,
+    AttentionMeanErrorX,
+    AttentionMeanErrorY,
 }
 
 impl MetricName {
@@ -202,6 +208,10 @@ impl MetricName {
             MetricName::TrunkHeldOutErrorY => "trunk_held_out_error_y",
             MetricName::TrunkMeanErrorX => "trunk_mean_error_x",
             MetricName::TrunkMeanErrorY => "trunk_mean_error_y",
+            MetricName::AttentionHeldOutErrorX => "attention_held_out_error_x",
+            MetricName::AttentionHeldOutErrorY => "attention_held_out_error_y",
+            MetricName::AttentionMeanErrorX => "attention_mean_error_x",
+            MetricName::AttentionMeanErrorY => "attention_mean_error_y",
         }
     }
 }

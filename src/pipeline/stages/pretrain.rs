@@ -14,6 +14,9 @@ pub const VERSION: u32 = 2;
 /// The trunk's weights in a pretrain artifact (torchvision names, as `model.pretrained_backbone` reads them).
 pub const TRUNK_FILE: &str = "trunk.safetensors";
 
+/// The object attention's weights in a pretrain artifact whose `object_attention_steps` trained one.
+pub const ATTENTION_FILE: &str = "object_attention.safetensors";
+
 /// What a pretrain stage runs: its settings, the trunk's shape, the seed, the agent collection's key and how many
 /// slots per task it uses of it (none: all; a smaller size of a nested grid uses only its own layouts).
 #[derive(Debug, Clone, PartialEq)]
@@ -21,6 +24,8 @@ pub struct PretrainJob {
     pub pretrain: PretrainConfig,
     pub backbone_width: i64,
     pub backbone_stages: usize,
+    /// The policy's object attention heads and inner width (what `object_attention_steps` trains).
+    pub attention_shape: (i64, i64),
     pub seed: u64,
     /// Where it runs (not part of the key).
     pub device: String,
@@ -37,6 +42,7 @@ pub fn add(plan: &mut Plan, cell: &CellConfig, agents: &str, per_task: Option<us
         pretrain,
         backbone_width: cell.model.backbone_width,
         backbone_stages: cell.model.backbone_stages,
+        attention_shape: (cell.model.attention_heads, cell.model.attention_inner),
         seed: cell.train.seed,
         device: cell.train.device.clone(),
         agents: agents.into(),
@@ -48,8 +54,14 @@ pub fn add(plan: &mut Plan, cell: &CellConfig, agents: &str, per_task: Option<us
         "backbone_stages": job.backbone_stages,
         "seed": job.seed,
     });
-    // Frames not augmented: the key as before the setting existed.
-    omit_when(&mut inputs, &[("pretrain.augmentation", serde_json::Value::Null)]);
+    if job.pretrain.object_attention_steps > 0 {
+        inputs["attention_shape"] = serde_json::json!([job.attention_shape.0, job.attention_shape.1]);
+    }
+    // Frames not augmented, no attention phase: the key as before the settings existed.
+    omit_when(
+        &mut inputs,
+        &[("pretrain.augmentation", serde_json::Value::Null), ("pretrain.object_attention_steps", 0.into())],
+    );
     if let Some(n) = per_task {
         inputs["per_task"] = n.into();
     }
@@ -61,20 +73,41 @@ pub fn trunk_of(upstream: &Upstream, key: &str) -> Result<PathBuf> {
     Ok(upstream.get(key)?.join(TRUNK_FILE))
 }
 
-/// Trains the trunk into `staging`; reports its held-out errors beside the mean's.
+/// The object attention file of the finished pretrain stage `key`, if its `object_attention_steps` made one.
+pub fn attention_of(upstream: &Upstream, key: &str) -> Result<Option<PathBuf>> {
+    Ok(Some(upstream.get(key)?.join(ATTENTION_FILE)).filter(|p| p.is_file()))
+}
+
+/// Trains the trunk into `staging` (then, with `object_attention_steps`, the object attention with it); reports
+/// the held-out errors of each phase beside the mean's.
 pub fn run(job: &PretrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
     let trunk = (job.backbone_width, job.backbone_stages);
     let config = job.pretrain.localise(trunk, job.per_task, job.seed, Some(staging.join(TRUNK_FILE)));
     let device = crate::device::parse_device(&ctx.device_or(&job.device))?;
-    let report = localise(upstream.get(&job.agents)?, &config, device)?;
+    let agents = upstream.get(&job.agents)?;
+    let report = localise(agents, &config, device)?;
     let last = report.curve.last().expect("the check measures at its last step");
-    Ok(StageOutputs {
-        metrics: vec![
-            (MetricName::TrunkHeldOutErrorX, last.held_out[0]),
-            (MetricName::TrunkHeldOutErrorY, last.held_out[1]),
-            (MetricName::TrunkMeanErrorX, report.mean_baseline[0]),
-            (MetricName::TrunkMeanErrorY, report.mean_baseline[1]),
-        ],
-        ..StageOutputs::default()
-    })
+    let mut metrics = vec![
+        (MetricName::TrunkHeldOutErrorX, last.held_out[0]),
+        (MetricName::TrunkHeldOutErrorY, last.held_out[1]),
+        (MetricName::TrunkMeanErrorX, report.mean_baseline[0]),
+        (MetricName::TrunkMeanErrorY, report.mean_baseline[1]),
+    ];
+    let attention = job.pretrain.attention_phase(
+        &config,
+        job.attention_shape,
+        staging.join(TRUNK_FILE),
+        staging.join(ATTENTION_FILE),
+    );
+    if let Some(config) = attention {
+        let report = localise(agents, &config, device)?;
+        let last = report.curve.last().expect("the check measures at its last step");
+        metrics.extend([
+            (MetricName::AttentionHeldOutErrorX, last.held_out[0]),
+            (MetricName::AttentionHeldOutErrorY, last.held_out[1]),
+            (MetricName::AttentionMeanErrorX, report.mean_baseline[0]),
+            (MetricName::AttentionMeanErrorY, report.mean_baseline[1]),
+        ]);
+    }
+    Ok(StageOutputs { metrics, ..StageOutputs::default() })
 }

@@ -113,6 +113,8 @@ pub fn run(job: &TrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext
     let model = match &job.trunk {
         Some(key) => ModelConfig {
             pretrained_backbone: Some(super::pretrain::trunk_of(upstream, key)?.to_string_lossy().into_owned()),
+            pretrained_object_attention: super::pretrain::attention_of(upstream, key)?
+                .map(|p| p.to_string_lossy().into_owned()),
             ..job.model.clone()
         },
         None => job.model.clone(),
