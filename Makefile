@@ -17,3 +17,5 @@ test: setup
 	cargo clippy --release --all-targets -- -D warnings
 	# One test at a time: in the single integration binary, concurrent tests crashed (SIGSEGV) in a fresh-clone run.
 	cargo test --release -- --test-threads=1
+	# The GPU proof's script, rehearsed on the CPU with tiny settings.
+	bash bench/gpu.sh --dry

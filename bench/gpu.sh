@@ -1,41 +1,113 @@
 #!/usr/bin/env bash
-# The GPU measurements of docs/benchmarks.md, on one CUDA machine:
-#   bash bench/gpu.sh [BINARY]
-# BINARY defaults to target/release/oneshot-lab. libtorch's CUDA build is taken from the machine's PyTorch
-# (`python3 -c "import torch"` must work); robosuite's assets from ONESHOT_ASSETS or the build's .venv.
+# The GPU proof of docs/benchmarks.md as one script that fits one 10-minute call on a 16-core H100/H200 machine:
+#   bash bench/gpu.sh [--dry] [BINARY]
+# Every figure goes to one report file ($OUT/gpu-report.txt when $OUT is set, else bench/out/), each part timed,
+# and a part that fails does not stop the others; the last lines list what passed and what failed.
+#   1. bench train (fp32, bf16, bf16 + channels-last) beside bench/reference.py (PyTorch eager);
+#   2. two collections at 240x320, then bench loader with host and device augmentation, frames held decoded and
+#      decoded on use;
+#   3. EGL on the NVIDIA driver: a contact sheet compared with bench/mesa-contact-sheet.png (rendered by Mesa);
+#   4. a short sixteen-task training and evaluation on the GPU (experiments/learn_gpu_quick.toml).
+# --dry rehearses every command on the CPU with tiny settings (what CI runs), so that the GPU call cannot fail
+# on a typo. BINARY defaults to target/release/oneshot-lab. On the GPU, libtorch's CUDA build comes from the
+# machine's PyTorch; robosuite's assets from ONESHOT_ASSETS or the build's .venv.
 set -u
-bin=${1:-target/release/oneshot-lab}
-torch_dir=$(python3 -c "import torch, os; print(os.path.dirname(torch.__file__))") || exit 1
-export LD_LIBRARY_PATH="$torch_dir/lib:$torch_dir/../nvidia/cu13/lib:${LD_LIBRARY_PATH:-}"
-# The binary links libtorch_cpu only; preloading the CUDA library registers libtorch's CUDA backend.
-lab() { LD_PRELOAD=libtorch_cuda.so "$bin" "$@"; }
-say() { echo; echo "\$ $*"; }
-data=$(mktemp -d)
-trap 'rm -rf "$data"' EXIT
+dry=0
+if [ "${1:-}" = --dry ]; then dry=1; shift; fi
+bin=$(realpath "${1:-target/release/oneshot-lab}")
+root=$(cd "$(dirname "$0")/.." && pwd)
+out_dir=${OUT:-$root/bench/out}
+mkdir -p "$out_dir"
+report="$out_dir/gpu-report.txt"
+exec > >(tee "$report") 2>&1
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+passed=() failed=()
 
-nvidia-smi -L
-say "bench world --robot panda --episodes 4 --height 240 --width 320"
-lab bench world --robot panda --episodes 4 --height 240 --width 320
-for setting in "fp32 contiguous" "bf16 contiguous" "bf16 channels_last"; do
-  set -- $setting
-  say "bench train --config paper --device cuda --steps 20 --precision $1 --memory-format $2"
-  lab bench train --config paper --device cuda --steps 20 --precision "$1" --memory-format "$2"
-  for tune in "" --cudnn-benchmark; do
-    say "python3 bench/reference.py --device cuda --steps 20 --precision $1 --memory-format $2 $tune"
-    python3 bench/reference.py --device cuda --steps 20 --precision "$1" --memory-format "$2" $tune
+if [ "$dry" = 1 ]; then
+  device=cpu steps=1 size=small per_task=2 height=32 width=40 batches=1 profile=(--profile dry)
+  lab() { "$bin" "$@"; }
+  # The build's PyTorch lacks its Python dependencies (it is there for libtorch): the reference is only compiled.
+  reference() { python3 -m py_compile "$root/bench/reference.py" && echo "(dry: bench/reference.py compiles)"; }
+else
+  device=cuda steps=20 size=paper per_task=8 height=240 width=320 batches=10 profile=()
+  torch_dir=$(python3 -c "import torch, os; print(os.path.dirname(torch.__file__))") || exit 1
+  export LD_LIBRARY_PATH="$torch_dir/lib:$torch_dir/../nvidia/cu13/lib:${LD_LIBRARY_PATH:-}"
+  # EGL through the NVIDIA driver (docs/benchmarks.md): the loader's packages, if carried, and the vendor file.
+  if [ -d "$root/.gl" ]; then for f in "$root"/.gl/*.deb; do dpkg -x "$f" /; done; ldconfig; fi
+  vendor=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+  if [ -f "$vendor" ]; then export __EGL_VENDOR_LIBRARY_FILENAMES=$vendor; fi
+  # The binary links libtorch_cpu only; preloading the CUDA library registers libtorch's CUDA backend.
+  lab() { LD_PRELOAD=libtorch_cuda.so "$bin" "$@"; }
+  reference() { python3 "$root/bench/reference.py" "$@"; }
+  nvidia-smi -L
+fi
+
+# part NAME COMMAND...: runs one part, timed; its status joins the summary.
+part() {
+  local name=$1 start rc
+  shift
+  echo
+  echo "== $name: $*"
+  start=$(date +%s)
+  "$@"
+  rc=$?
+  echo "== $name: exit $rc after $(( $(date +%s) - start )) s"
+  if [ "$rc" = 0 ]; then passed+=("$name"); else failed+=("$name"); fi
+}
+
+train_settings() {
+  for setting in "fp32 contiguous" "bf16 contiguous" "bf16 channels_last"; do
+    set -- $setting
+    echo "-- bench train --precision $1 --memory-format $2"
+    lab bench train --config "$size" --device "$device" --steps "$steps" --precision "$1" --memory-format "$2" || return
+    echo "-- bench/reference.py --precision $1 --memory-format $2"
+    reference --device "$device" --steps "$steps" --precision "$1" --memory-format "$2" || return
   done
-done
-say "bench train --config paper --device cuda --steps 10 --precision bf16 --memory-format channels_last --architectures all"
-lab bench train --config paper --device cuda --steps 10 --precision bf16 --memory-format channels_last --architectures all
-for robot in sawyer panda; do
-  say "collect --robot $robot --per-task 8 --height 240 --width 320 (16 tasks, all cores)"
-  start=$(date +%s%N)
-  lab collect --robot "$robot" --out "$data/$robot" --per-task 8 --height 240 --width 320
-  echo "$robot: $(( ($(date +%s%N) - start) / 1000000 )) ms for 128 trajectories"
-done
-for at in host device; do
-  for decode in "" --decode-on-use; do
-    say "bench loader --device cuda --augment-on $at $decode"
-    lab bench loader --demos "$data/sawyer" --agents "$data/panda" --device cuda --augment-on "$at" $decode
+}
+
+collections() {
+  for robot in sawyer panda; do
+    lab collect --robot "$robot" --out "$work/$robot" --tasks 1,14 --per-task "$per_task" \
+      --height "$height" --width "$width" || return
   done
-done
+}
+
+loader() {
+  for at in host device; do
+    for decode in "" --decode-on-use; do
+      echo "-- bench loader --augment-on $at $decode"
+      lab bench loader --demos "$work/sawyer" --agents "$work/panda" --device "$device" --batches "$batches" \
+        --augment-on "$at" $decode || return
+    done
+  done
+}
+
+egl() {
+  if [ "$dry" = 1 ]; then
+    # Mesa against the sheet it rendered when the reference was made: the comparison itself is rehearsed.
+    lab contact-sheet --out "$work/sheet.png" --instances 2 --height 120 --width 160 \
+      --compare "$root/bench/mesa-contact-sheet.png"
+  else
+    lab contact-sheet --out "$out_dir/nvidia-contact-sheet.png" --instances 2 --height 120 --width 160 \
+      --compare "$root/bench/mesa-contact-sheet.png"
+  fi
+}
+
+learning() {
+  lab run "$root/experiments/learn_gpu_quick.toml" --store "$work/runs" --jobs 2 "${profile[@]}" || return
+  sed -n 1,30p "$work/runs/reports/learn_gpu_quick/index.md"
+  cp -r "$work/runs/reports" "$out_dir/" 2>/dev/null
+  true
+}
+
+part "bench train" train_settings
+part "collections" collections
+part "bench loader" loader
+part "EGL" egl
+part "sixteen tasks" learning
+echo
+echo "passed: ${passed[*]:-none}"
+echo "failed: ${failed[*]:-none}"
+echo "report: $report"
+[ "${#failed[@]}" = 0 ]

@@ -139,6 +139,13 @@ pub struct ContactSheetArgs {
     /// held-out ones framed in red.
     #[arg(long, requires = "objects")]
     pub each_object: bool,
+    /// A sheet rendered elsewhere with the same options (e.g. by Mesa on a CPU machine): the new one is compared
+    /// with it pixel by pixel, and the command fails if they differ by more than `--tolerance` on average.
+    #[arg(long)]
+    pub compare: Option<PathBuf>,
+    /// The largest mean absolute difference per channel (0-255) `--compare` accepts.
+    #[arg(long, default_value_t = 4.0, requires = "compare")]
+    pub tolerance: f64,
     #[command(flatten)]
     pub frames: FrameArgs,
 }
@@ -206,7 +213,50 @@ pub fn contact_sheet(a: ContactSheetArgs) -> Result<()> {
         _ => render_sheet(&a.out, a.instances, a.seed, &world)?,
     }
     println!("wrote {}", a.out.display());
+    if let Some(reference) = &a.compare {
+        let (mean, share) = sheet_difference(&a.out, reference)?;
+        println!(
+            "against {}: mean absolute difference {mean:.3} per channel (0-255), {:.2}% of pixels off by more \
+             than 32",
+            reference.display(),
+            100.0 * share
+        );
+        if mean > a.tolerance {
+            bail!(
+                "{} differs from {} by {mean:.3} on average, above --tolerance {}",
+                a.out.display(),
+                reference.display(),
+                a.tolerance
+            );
+        }
+    }
     Ok(())
+}
+
+/// The mean absolute difference per channel of two PNGs of one size, and the share of pixels whose largest
+/// channel difference exceeds 32.
+fn sheet_difference(a: &Path, b: &Path) -> Result<(f64, f64)> {
+    let open = |p: &Path| -> Result<image::RgbImage> {
+        Ok(image::open(p).with_context(|| format!("reading {}", p.display()))?.to_rgb8())
+    };
+    let (x, y) = (open(a)?, open(b)?);
+    if x.dimensions() != y.dimensions() {
+        bail!(
+            "{} is {:?} pixels, {} {:?}: render both with the same options",
+            a.display(),
+            x.dimensions(),
+            b.display(),
+            y.dimensions()
+        );
+    }
+    let (mut total, mut off) = (0u64, 0usize);
+    for (p, q) in x.pixels().zip(y.pixels()) {
+        let d = p.0.iter().zip(q.0).map(|(u, v)| u.abs_diff(v) as u64);
+        total += d.clone().sum::<u64>();
+        off += usize::from(d.max().unwrap_or(0) > 32);
+    }
+    let pixels = x.pixels().len();
+    Ok((total as f64 / (3 * pixels) as f64, off as f64 / pixels as f64))
 }
 
 /// Prints the report as a table.
