@@ -105,8 +105,8 @@ const CATALOGUE: [ObjectModel; 4 + LIBRARY_SIZE] = [
     plain("cyl_marker", cyl(0.016, 0.050), [0.10, 0.30, 0.20]),
     // Spheres.
     plain("sph_orange", Shape::Sphere(0.028), [1.00, 0.55, 0.05]),
-    plain("sph_plum", Shape::Sphere(0.025), [0.45, 0.10, 0.45]),
-    patterned("sph_ball", Shape::Sphere(0.026), [0.95, 0.95, 0.95], Pattern::Checker([0.85, 0.1, 0.1])),
+    plain("sph_plum", Shape::Sphere(0.027), [0.45, 0.10, 0.45]),
+    patterned("sph_ball", Shape::Sphere(0.028), [0.95, 0.95, 0.95], Pattern::Checker([0.85, 0.1, 0.1])),
     // Ellipsoids.
     plain("ell_lemon", Shape::Ellipsoid([0.034, 0.025, 0.026]), [0.98, 0.90, 0.20]),
     plain("ell_egg", Shape::Ellipsoid([0.024, 0.022, 0.032]), [0.95, 0.90, 0.80]),
