@@ -424,7 +424,7 @@ fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
         "evaluation benchmark: {episodes} episodes x {horizon} steps, {}x{} frames, {workers} simulation threads, CPU",
         c.image.height, c.image.width
     );
-    let specs = config.episode_specs(&HashSet::new());
+    let specs = config.episode_specs(world.objects, &HashSet::new());
     for (name, policy) in [("small network", Actor::Network(&trained)), ("random policy", Actor::Random)] {
         let start = Instant::now();
         let results =

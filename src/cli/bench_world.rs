@@ -1,12 +1,12 @@
 //! `bench world`: physics and rendering throughput of the collection path (expert episodes with IK, control,
 //! frames, JPEG encoding and file writing) beside a bare MuJoCo step + render loop of the same scene, in one run.
 use super::options::{FrameArgs, parse_robot};
+use super::world::Objects;
 use anyhow::{Context, Result};
 use oneshot_lab::data::collect::collect;
 use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
 use oneshot_lab::sim::env::{Env, WorldConfig};
 use oneshot_lab::sim::robot::Robot;
-use oneshot_lab::sim::task::{Instance, Task};
 use std::time::Instant;
 
 /// Arguments of the `bench world` command.
@@ -18,13 +18,17 @@ pub struct BenchWorldArgs {
     /// Expert episodes timed.
     #[arg(long, default_value_t = 4)]
     pub episodes: usize,
+    /// `base` (the four base objects) or `library` (the multi-object world: 30 objects in the scene, four of an
+    /// environment laid out, the others parked).
+    #[arg(long, value_enum, default_value = "base")]
+    pub objects: Objects,
     #[command(flatten)]
     pub frames: FrameArgs,
 }
 
 /// `bench world`: runs the benchmark and prints its figures.
 pub fn bench_world(a: BenchWorldArgs) -> Result<()> {
-    let world = a.frames.world();
+    let world = WorldConfig { objects: a.objects.set(), ..a.frames.world() };
     let bench = measure(a.robot, &world, a.episodes)?;
     print_bench(a.robot, &world, &bench);
     Ok(())
@@ -54,7 +58,7 @@ fn measure(robot: Robot, world: &WorldConfig, episodes: usize) -> Result<WorldBe
 
     let mut env = Env::new(robot, world, true)?;
     let per_action = env.physics_steps_per_action();
-    env.reset(&Instance::sample(Task::from_id(0)?, 0))?;
+    env.reset(&config.instance(0, 0, 0)?)?;
     let start = Instant::now();
     for _ in 0..frames {
         env.step_physics_only(per_action);
@@ -72,8 +76,8 @@ fn measure(robot: Robot, world: &WorldConfig, episodes: usize) -> Result<WorldBe
 /// Prints the figures and the collection path's share of the bare loop's speed.
 fn print_bench(robot: Robot, world: &WorldConfig, b: &WorldBench) {
     println!(
-        "world benchmark: {robot}, {}x{} frames, {:?} visuals, one worker",
-        world.image.height, world.image.width, world.visuals
+        "world benchmark: {robot}, {}x{} frames, {:?} visuals, {:?} objects, one worker",
+        world.image.height, world.image.width, world.visuals, world.objects
     );
     println!(
         "  collection      : {:>9.0} physics steps/s {:>7.1} frames/s",

@@ -50,7 +50,8 @@ pub enum Objects {
 }
 
 impl Objects {
-    fn set(self) -> ObjectSet {
+    /// The `world.objects` setting it names.
+    pub fn set(self) -> ObjectSet {
         match self {
             Objects::Base => ObjectSet::Base,
             Objects::Library => ObjectSet::Library,

@@ -415,8 +415,9 @@ mod tests {
         assert!(zero.contains("pretrain.steps"), "{zero}");
         let frozen = err(&format!("[model]\nfreeze_backbone = true\n{grid}"));
         assert!(frozen.contains("needs model.pretrained_backbone or [pretrain]"), "{frozen}");
-        let library = err(&format!("[world]\nobjects = \"library\"\n{grid}"));
-        assert!(library.contains("world.objects = \"library\"") && library.contains("not built yet"), "{library}");
+        let library = err(&format!("[world]\nobjects = \"library\"\n[collect]\nlayouts = \"unique\"\n{grid}"));
+        assert!(library.contains("collect.layouts") && library.contains("environment_instances"), "{library}");
+        load(&format!("[world]\nobjects = \"library\"\n{grid}")).unwrap();
     }
 
     #[test]

@@ -73,10 +73,12 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
             );
         }
     }
-    if config.world.objects == crate::sim::env::ObjectSet::Library {
+    let c = &config.collect;
+    let pooled = c.layouts == crate::data::collect_config::LayoutSharing::Unique || c.layout_pool.is_some();
+    if config.world.objects == crate::sim::env::ObjectSet::Library && pooled {
         bail!(
-            "{file}: in {what}: world.objects = \"library\": collections and evaluations in the multi-object world \
-             are not built yet (its scenes and experts are: `oneshot-lab expert-check --objects library`)"
+            "{file}: in {what}: collect.layouts and collect.layout_pool do not apply with world.objects = \"library\": \
+             its layouts follow its environments (collect.environment_instances)"
         );
     }
     if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() && config.pretrain.is_none() {

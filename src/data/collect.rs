@@ -4,7 +4,6 @@ use super::manifest::{Manifest, ManifestEntry, TRAJECTORY_DIR};
 use super::trajectory::{Trajectory, TrajectoryMeta};
 use crate::sim::env::Env;
 use crate::sim::rollout::run_expert_perturbed;
-use crate::sim::task::{Instance, Task};
 use anyhow::{Context, Result, bail};
 use std::path::Path;
 use std::sync::Mutex;
@@ -77,11 +76,11 @@ pub fn collect_into(config: &CollectConfig, dir: &Path, workers: usize, progress
 
 /// Runs the expert on fresh layouts until it places the object, then writes the trajectory.
 fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -> Result<ManifestEntry> {
-    let task = Task::from_id(slot.task)?;
     let c = &config.settings;
     for attempt in 0..c.max_attempts {
-        let seed = config.instance_seed(slot.task, slot.index, attempt);
-        let episode = run_expert_perturbed(env, &Instance::sample(task, seed), c.max_actions, true, c.action_noise)?;
+        let instance = config.instance(slot.task, slot.index, attempt)?;
+        let seed = instance.seed;
+        let episode = run_expert_perturbed(env, &instance, c.max_actions, true, c.action_noise)?;
         if !episode.milestones.placed {
             continue;
         }

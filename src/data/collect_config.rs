@@ -1,9 +1,11 @@
 //! What a collection is: the robot, trajectories per task, the world, and how layouts are drawn (the `[collect]`
-//! section of an experiment file); the seeds of every slot's layout.
+//! section of an experiment file); the seeds of every slot's layout, and in the multi-object world the
+//! environment (four library objects) each slot belongs to.
 use crate::seeds::derive_seed;
-use crate::sim::env::WorldConfig;
+use crate::sim::env::{ObjectSet, WorldConfig};
+use crate::sim::object::{Object, Split};
 use crate::sim::robot::Robot;
-use crate::sim::task::{NUM_TASKS, Task};
+use crate::sim::task::{Instance, NUM_OBJECTS, NUM_TASKS, Task};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
@@ -43,6 +45,11 @@ pub struct CollectSettings {
     /// Standard deviation (m) of noise added to the executed position targets, the recorded actions staying the
     /// expert's (0: the authors' noise-free data).
     pub action_noise: f64,
+    /// In the multi-object world (`world.objects = "library"`): trajectories of each task per environment. Slot
+    /// `i` of every task lies in environment `i / environment_instances`, whose four training objects and
+    /// layouts all sixteen tasks share (the authors' `--per_task_group 2 --give_env_seed`: 2,400 instances of
+    /// 1,200 tasks in 75 environments at 150 per task).
+    pub environment_instances: usize,
 }
 
 impl Default for CollectSettings {
@@ -56,6 +63,7 @@ impl Default for CollectSettings {
             max_attempts: 10,
             jpeg_quality: 90,
             action_noise: 0.0,
+            environment_instances: 2,
         }
     }
 }
@@ -83,6 +91,9 @@ impl CollectSettings {
         }
         if self.layout_pool.is_some() && self.layouts == LayoutSharing::Unique {
             bail!("collect.layout_pool is set but collect.layouts = \"unique\" draws no pool");
+        }
+        if self.environment_instances == 0 {
+            bail!("collect.environment_instances = 0: an environment needs at least one trajectory per task");
         }
         if !(1..=100).contains(&self.jpeg_quality) {
             bail!("collect.jpeg_quality = {} out of range 1..=100", self.jpeg_quality);
@@ -114,11 +125,26 @@ impl CollectConfig {
         if self.per_task == 0 {
             bail!("collect.per_task must be at least 1");
         }
+        if self.library() && (self.settings.layouts == LayoutSharing::Unique || self.settings.layout_pool.is_some()) {
+            bail!(
+                "collect.layouts and collect.layout_pool do not apply with world.objects = \"library\": there the \
+                 layouts follow the environments (collect.environment_instances)"
+            );
+        }
         self.settings.validate()
     }
 
-    /// Number of environments in the pool of shared layouts (none when every slot has its own layout).
+    /// Whether the collection lies in the multi-object world (environments of library objects).
+    pub fn library(&self) -> bool {
+        self.world.objects == ObjectSet::Library
+    }
+
+    /// Number of environments the slots draw from: the pool of shared layouts, or in the multi-object world the
+    /// environments the slots are grouped into (none when every slot has its own layout).
     pub fn pool_size(&self) -> Option<usize> {
+        if self.library() {
+            return Some(self.per_task.div_ceil(self.settings.environment_instances));
+        }
         match self.settings.layouts {
             LayoutSharing::Unique => None,
             LayoutSharing::Shared => Some(
@@ -127,22 +153,44 @@ impl CollectConfig {
         }
     }
 
-    /// The pool environment that slot `index` of `task` draws (the same for both robots, so a demonstration and
-    /// the agent trajectory of its slot fall in the same split), when layouts are shared.
+    /// The environment of slot `index` of `task` (the same for both robots, so a demonstration and the agent
+    /// trajectory of its slot fall in the same split): drawn from the pool when layouts are shared, or in the
+    /// multi-object world the slot's group, `index / environment_instances`, whatever the task.
     pub fn environment(&self, task: usize, index: usize) -> Option<u64> {
+        if self.library() {
+            return Some((index / self.settings.environment_instances) as u64);
+        }
         let pool = self.pool_size()? as u64;
         Some(derive_seed("layout-pool", &[self.settings.seed, task as u64, index as u64]) % pool)
     }
 
+    /// The four objects, by slot, of `environment` (the base world's four outside the multi-object world): the
+    /// same for both robots, drawn from the library's training objects only.
+    pub fn objects(&self, environment: Option<u64>) -> [Object; NUM_OBJECTS] {
+        let seed = derive_seed("library-environment", &[self.settings.seed, environment.unwrap_or(0)]);
+        self.world.objects.environment(Split::Train, seed)
+    }
+
     /// Seed of the layout of `attempt` for slot `index` of `task`. With shared layouts the first attempt's layout
-    /// depends on the slot's environment and the robot only; a retry draws a layout of the slot's own (the authors
-    /// change the layout after failed tries too).
+    /// depends on the slot's environment and the robot only; in the multi-object world, on the environment, the
+    /// slot's place in it and the robot, so that all sixteen tasks of an environment share its layouts (the
+    /// authors'). A retry draws a layout of the slot's own (the authors change the layout after failed tries too).
     pub fn instance_seed(&self, task: usize, index: usize, attempt: usize) -> u64 {
         let (seed, robot) = (self.settings.seed, self.robot as u64);
         match self.environment(task, index) {
+            Some(env) if attempt == 0 && self.library() => {
+                let place = (index % self.settings.environment_instances) as u64;
+                derive_seed("collect-library", &[seed, robot, env, place])
+            }
             Some(env) if attempt == 0 => derive_seed("collect-env", &[seed, robot, env]),
             _ => derive_seed("collect", &[seed, robot, task as u64, index as u64, attempt as u64]),
         }
+    }
+
+    /// The instance of `attempt` for slot `index` of `task`: its layout of its environment's objects.
+    pub fn instance(&self, task: usize, index: usize, attempt: usize) -> Result<Instance> {
+        let objects = self.objects(self.environment(task, index));
+        Ok(Instance::sample_with(Task::from_id(task)?, self.instance_seed(task, index, attempt), objects))
     }
 }
 
@@ -186,6 +234,45 @@ mod tests {
         assert_eq!(unique.pool_size(), None);
         assert!(layouts(&unique).values().all(|t| t.len() == 1));
         assert_eq!(layouts(&unique).len(), 1600);
+    }
+
+    #[test]
+    fn library_slots_group_into_environments_of_training_objects_shared_by_both_robots_and_all_tasks() {
+        use crate::sim::env::ObjectSet;
+        let library = |robot| {
+            let mut c = CollectConfig::paper(robot);
+            c.world.objects = ObjectSet::Library;
+            c.per_task = 150;
+            c
+        };
+        let (panda, sawyer) = (library(Robot::Panda), library(Robot::Sawyer));
+        panda.validate().unwrap();
+        // The authors' multi-object data: 2,400 instances of 1,200 tasks in 75 environments.
+        assert_eq!(panda.pool_size(), Some(75));
+        let mut environments = HashSet::new();
+        for index in 0..panda.per_task {
+            let env = panda.environment(0, index).unwrap();
+            assert_eq!(env, (index / 2) as u64);
+            let objects = panda.objects(Some(env));
+            assert!(objects.iter().all(|o| !o.held_out()), "environment {env} holds {objects:?}");
+            environments.insert(objects);
+            for task in 0..NUM_TASKS {
+                // Every task of the environment: the same objects for both robots and the same layout per robot.
+                assert_eq!(panda.environment(task, index), Some(env));
+                assert_eq!(sawyer.instance(task, index, 0).unwrap().kinds, objects);
+                assert_eq!(panda.instance_seed(task, index, 0), panda.instance_seed(0, index, 0));
+            }
+            assert_ne!(panda.instance_seed(0, index, 0), sawyer.instance_seed(0, index, 0));
+        }
+        assert!(environments.len() > 70, "{} distinct object sets in 75 environments", environments.len());
+        assert_ne!(panda.instance_seed(0, 0, 0), panda.instance_seed(0, 1, 0), "two instances per environment");
+        assert_eq!(CollectConfig::paper(Robot::Panda).objects(Some(3)), crate::sim::object::Object::ALL);
+
+        let mut unique = library(Robot::Panda);
+        unique.settings.layouts = LayoutSharing::Unique;
+        assert!(unique.validate().unwrap_err().to_string().contains("collect.layouts"));
+        unique.settings = CollectSettings { environment_instances: 0, ..CollectSettings::default() };
+        assert!(unique.validate().unwrap_err().to_string().contains("collect.environment_instances = 0"));
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! Training pairs: a demonstrator video and an agent trajectory of the same task, in the same split.
+//! Training pairs: a demonstrator video and an agent trajectory of the same task, in the same split (and in the
+//! multi-object world, of the same environment: a task names an object slot, which only an environment fills).
 //! A sample is the video's context frames, a window of agent frames, its actions and the point target.
 use super::augment::{AugmentDraw, Augmentation};
 use super::collect_config::CollectConfig;
@@ -25,14 +26,14 @@ pub enum Split {
     Val,
 }
 
-/// Demonstrator and agent trajectories, split by trajectory and grouped by task.
+/// Demonstrator and agent trajectories, split by layout and grouped by what a pair must share ([`pair_group`]).
 pub struct PairDataset {
     demos: Vec<Trajectory>,
     agents: Vec<Trajectory>,
     /// Decoded RGB frames `[demos, agents][trajectory][step]` of the trajectories the frame budget holds
     /// ([`super::frame_cache`]); the others decode their JPEG on every use.
     decoded: [Vec<Option<Vec<Vec<u8>>>>; 2],
-    /// `[split][task]` -> indices into `demos` / `agents`.
+    /// `[split][group]` -> indices into `demos` / `agents`.
     demo_index: [Vec<Vec<usize>>; 2],
     agent_index: [Vec<Vec<usize>>; 2],
     /// The world both collections were recorded in, and the JPEG quality of their frames.
@@ -58,8 +59,11 @@ fn load_collection(dir: &Path, robot: Robot, per_task: Option<usize>) -> Result<
             );
         }
         manifest.trajectories.retain(|e| e.index < n);
-        // The environment pool stays the whole collection's, whose size the default derives from `per_task`.
-        manifest.config.settings.layout_pool = manifest.config.pool_size();
+        // The environment pool stays the whole collection's, whose size the default derives from `per_task` (in
+        // the multi-object world the first `n` slots are whole environments' and the pool shrinks with them).
+        if !manifest.config.library() {
+            manifest.config.settings.layout_pool = manifest.config.pool_size();
+        }
         manifest.config.per_task = n;
     }
     let trajs = manifest
@@ -83,6 +87,15 @@ pub fn split_of(entry: &ManifestEntry, config: &CollectConfig, val_fraction: f64
         _ => (entry.index, config.per_task),
     };
     if position + last(count) >= count { Split::Val } else { Split::Train }
+}
+
+/// What a demonstration and an agent trajectory paired for training share: their task, and in the multi-object
+/// world their environment too (as `environment * 16 + task`).
+pub fn pair_group(entry: &ManifestEntry, config: &CollectConfig) -> usize {
+    match entry.environment {
+        Some(env) if config.library() => env as usize * NUM_TASKS + entry.task,
+        _ => entry.task,
+    }
 }
 
 impl PairDataset {
@@ -118,11 +131,25 @@ impl PairDataset {
                 bail!("the {who} collection has {} trajectory per task; a train/val split needs 2", m.config.per_task);
             }
         }
+        let (ds, a_s) = (&dm.config.settings, &am.config.settings);
+        if dm.config.library() && (ds.seed, ds.environment_instances) != (a_s.seed, a_s.environment_instances) {
+            bail!(
+                "{} and {} group their slots into different environments (collect.seed {} vs {}, \
+                 collect.environment_instances {} vs {}): their tasks name different objects",
+                demo_dir.display(),
+                agent_dir.display(),
+                ds.seed,
+                a_s.seed,
+                ds.environment_instances,
+                a_s.environment_instances
+            );
+        }
         let index = |m: &Manifest| -> [Vec<Vec<usize>>; 2] {
-            let mut idx = [vec![Vec::new(); NUM_TASKS], vec![Vec::new(); NUM_TASKS]];
+            let groups = m.trajectories.iter().map(|e| pair_group(e, &m.config) + 1).max().unwrap_or(0);
+            let mut idx = [vec![Vec::new(); groups.max(NUM_TASKS)], vec![Vec::new(); groups.max(NUM_TASKS)]];
             for (k, e) in m.trajectories.iter().enumerate() {
                 let s = split_of(e, &m.config, val_fraction) as usize;
-                idx[s][e.task].push(k);
+                idx[s][pair_group(e, &m.config)].push(k);
             }
             idx
         };
@@ -137,10 +164,19 @@ impl PairDataset {
                 );
             }
         }
-        for t in 0..NUM_TASKS {
-            for s in 0..2 {
-                if demo_index[s][t].is_empty() != agent_index[s][t].is_empty() {
-                    bail!("task {t} has trajectories for only one of the two robots");
+        for s in 0..2 {
+            let groups = demo_index[s].len().max(agent_index[s].len());
+            for g in 0..groups {
+                let has = |index: &[Vec<usize>]| index.get(g).is_some_and(|list| !list.is_empty());
+                if has(&demo_index[s]) != has(&agent_index[s]) {
+                    let t = g % NUM_TASKS;
+                    match dm.config.library() {
+                        true => bail!(
+                            "task {t} of environment {} has trajectories for only one of the two robots",
+                            g / NUM_TASKS
+                        ),
+                        false => bail!("task {t} has trajectories for only one of the two robots"),
+                    }
                 }
             }
         }
@@ -208,7 +244,7 @@ impl PairDataset {
     /// Number of (demonstrator video, agent trajectory) pairs in `split`.
     pub fn pairs(&self, split: Split) -> usize {
         let s = split as usize;
-        (0..NUM_TASKS).map(|t| self.demo_index[s][t].len() * self.agent_index[s][t].len()).sum()
+        self.demo_index[s].iter().zip(&self.agent_index[s]).map(|(d, a)| d.len() * a.len()).sum()
     }
 
     /// The shortest trajectory of either robot.
@@ -246,17 +282,18 @@ impl PairDataset {
         form: FrameForm,
     ) -> Result<Sample> {
         let s = split as usize;
-        let tasks: Vec<usize> = (0..NUM_TASKS).filter(|&t| !self.agent_index[s][t].is_empty()).collect();
-        if tasks.is_empty() {
+        let groups: Vec<usize> =
+            (0..self.agent_index[s].len()).filter(|&g| !self.agent_index[s][g].is_empty()).collect();
+        if groups.is_empty() {
             bail!("the {split:?} split is empty");
         }
-        // Uniform over agent trajectories: weight tasks by their count.
-        let total: usize = tasks.iter().map(|&t| self.agent_index[s][t].len()).sum();
+        // Uniform over agent trajectories: weight groups by their count.
+        let total: usize = groups.iter().map(|&g| self.agent_index[s][g].len()).sum();
         let mut pick = rng.random_range(0..total);
-        let task = *tasks
+        let group = *groups
             .iter()
-            .find(|&&t| {
-                let n = self.agent_index[s][t].len();
+            .find(|&&g| {
+                let n = self.agent_index[s][g].len();
                 if pick < n {
                     true
                 } else {
@@ -265,9 +302,10 @@ impl PairDataset {
                 }
             })
             .expect("pick is below the total");
-        let agent_k = self.agent_index[s][task][pick];
+        let agent_k = self.agent_index[s][group][pick];
         let agent = &self.agents[agent_k];
-        let demo_list = &self.demo_index[s][task];
+        let task = group % NUM_TASKS;
+        let demo_list = &self.demo_index[s][group];
         let demo_k = demo_list[rng.random_range(0..demo_list.len())];
         let demo = &self.demos[demo_k];
 

@@ -3,7 +3,8 @@ use super::history::HistoryMode;
 use super::workers::EpisodeSpec;
 use crate::model::config::ModelConfig;
 use crate::seeds::derive_seed;
-use crate::sim::env::{GripperYaw, WorldConfig};
+use crate::sim::env::{GripperYaw, ObjectSet, WorldConfig};
+use crate::sim::object::Split;
 use crate::sim::task::{NUM_TASKS, Task};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
@@ -165,7 +166,9 @@ impl EvalConfig {
     }
 
     /// The episodes: tasks in rotation, layouts from the `eval` seed domain, none in `exclude` (training seeds).
-    pub fn episode_specs(&self, exclude: &HashSet<u64>) -> Vec<EpisodeSpec> {
+    /// In the multi-object world each rotation through the tasks is one environment of the held-out objects,
+    /// drawn by its own seed, for the demonstrator and the agent alike.
+    pub fn episode_specs(&self, objects: ObjectSet, exclude: &HashSet<u64>) -> Vec<EpisodeSpec> {
         let fresh = |domain: &str, i: usize| {
             (0u64..)
                 .map(|attempt| derive_seed(domain, &[self.seed, i as u64, attempt]))
@@ -178,6 +181,10 @@ impl EvalConfig {
                 task: self.tasks[i % self.tasks.len()],
                 agent_seed: fresh("eval-agent", i),
                 demo_seed: fresh("eval-demo", i),
+                objects: objects.environment(
+                    Split::HeldOut,
+                    derive_seed("eval-environment", &[self.seed, (i / self.tasks.len()) as u64]),
+                ),
             })
             .collect()
     }
@@ -199,8 +206,23 @@ mod tests {
             );
         }
         let eval = EvalConfig { episodes: 160, ..EvalConfig::default() };
-        let specs = eval.episode_specs(&seeds);
+        let specs = eval.episode_specs(ObjectSet::Base, &seeds);
         assert!(specs.iter().all(|e| !seeds.contains(&e.agent_seed) && !seeds.contains(&e.demo_seed)));
+    }
+
+    #[test]
+    fn multi_object_evaluation_runs_each_round_of_tasks_in_an_environment_of_the_held_out_objects() {
+        let eval = EvalConfig { episodes: 48, ..EvalConfig::default() };
+        let specs = eval.episode_specs(ObjectSet::Library, &HashSet::new());
+        let held: HashSet<_> = crate::sim::object::split_objects(Split::HeldOut).into_iter().collect();
+        for round in specs.chunks(eval.tasks.len()) {
+            assert!(round.iter().all(|s| s.objects == round[0].objects), "one environment per round of tasks");
+            assert_eq!(round[0].objects.iter().copied().collect::<HashSet<_>>(), held);
+        }
+        assert!(specs[0].objects != specs[16].objects || specs[16].objects != specs[32].objects);
+        let base = eval.episode_specs(ObjectSet::Base, &HashSet::new());
+        assert!(base.iter().all(|s| s.objects == crate::sim::object::Object::ALL));
+        assert_eq!(base[5].agent_seed, specs[5].agent_seed, "the same layout seeds");
     }
 
     #[test]

@@ -3,6 +3,7 @@
 use super::config::EvalConfig;
 use super::workers::EpisodeSpec;
 use crate::data::manifest::Manifest;
+use crate::sim::env::ObjectSet;
 use anyhow::Result;
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -17,10 +18,10 @@ pub enum Layouts {
 }
 
 impl Layouts {
-    /// The episodes to run.
-    pub fn episodes(&self, config: &EvalConfig) -> Result<Vec<EpisodeSpec>> {
+    /// The episodes to run in a world of `objects`.
+    pub fn episodes(&self, config: &EvalConfig, objects: ObjectSet) -> Result<Vec<EpisodeSpec>> {
         Ok(match self {
-            Layouts::Fresh(exclude) => config.episode_specs(exclude),
+            Layouts::Fresh(exclude) => config.episode_specs(objects, exclude),
             Layouts::Training { demos, agents } => training_layouts(&Manifest::load(demos)?, &Manifest::load(agents)?),
         })
     }
@@ -35,18 +36,24 @@ pub fn training_seeds(collections: &[PathBuf]) -> Result<HashSet<u64>> {
     Ok(seeds)
 }
 
-/// Episodes on the layouts of a demonstrator and an agent collection: each agent trajectory's own layout,
-/// demonstrated on the layout of the demonstrator trajectory of the same task and slot (the training pairs an
-/// overfitted policy reproduces).
+/// Episodes on the layouts of a demonstrator and an agent collection: each agent trajectory's own layout, with
+/// its environment's objects, demonstrated on the layout of the demonstrator trajectory of the same task and slot
+/// (the training pairs an overfitted policy reproduces).
 pub fn training_layouts(demos: &Manifest, agents: &Manifest) -> Vec<EpisodeSpec> {
     agents
         .trajectories
         .iter()
         .filter_map(|a| {
             let d = demos.trajectories.iter().find(|d| d.task == a.task && d.index == a.index)?;
-            Some((a.task, a.instance_seed, d.instance_seed))
+            Some((a, d.instance_seed))
         })
         .enumerate()
-        .map(|(index, (task, agent_seed, demo_seed))| EpisodeSpec { index, task, agent_seed, demo_seed })
+        .map(|(index, (a, demo_seed))| EpisodeSpec {
+            index,
+            task: a.task,
+            agent_seed: a.instance_seed,
+            demo_seed,
+            objects: agents.config.objects(a.environment),
+        })
         .collect()
 }

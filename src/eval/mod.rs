@@ -35,6 +35,9 @@ pub struct EpisodeResult {
     pub reached: bool,
     pub picked: bool,
     pub placed: bool,
+    /// The object came to rest in another quadrant of the target bin (the paper's "wrong bin").
+    #[serde(default)]
+    pub wrong_bin: bool,
     /// Actions taken (the episode stops once placed).
     pub steps: usize,
     /// First step after which each stage held.

@@ -150,6 +150,7 @@ fn run_wave(
             reached: false,
             picked: false,
             placed: false,
+            wrong_bin: false,
             steps: 0,
             first_reached: None,
             first_picked: None,
@@ -186,6 +187,7 @@ fn run_wave(
             hit(s.milestones.picked, &mut r.first_picked);
             hit(s.milestones.placed, &mut r.first_placed);
             (r.reached, r.picked, r.placed) = (s.milestones.reached, s.milestones.picked, s.milestones.placed);
+            r.wrong_bin = s.milestones.wrong_bin;
             if let (Actor::Network(p), false) = (policy, scripted) {
                 inputs[j].history.push(network_frame(&s.frame, world, p.summary.jpeg_quality)?);
             }
@@ -208,7 +210,8 @@ fn run_wave(
     if let Some(dir) = &output.videos_dir {
         let size = video::video_size(world.image, config.video_width);
         for j in (0..n).filter(|&j| filmed[j]) {
-            let (demo, agent) = video::replay(world, size, &results[j], &executed[j], config.demo_max_actions)?;
+            let (demo, agent) =
+                video::replay(world, size, &results[j], wave[j].objects, &executed[j], config.demo_max_actions)?;
             video::write_video(dir, &demo, &agent, size, world.policy_hz, &results[j])
                 .with_context(|| format!("writing the video of episode {}", wave[j].index))?;
         }

@@ -36,7 +36,7 @@ pub fn run_eval(
         _ => world.cloned().unwrap_or_default(),
     };
     let output = EvalOutput { strips_dir: out.map(|o| o.join("strips")), videos_dir: out.map(|o| o.join(VIDEOS_DIR)) };
-    let results = rollouts(&loaded, &world, config, &layouts.episodes(config)?, workers, &output)?;
+    let results = rollouts(&loaded, &world, config, &layouts.episodes(config, world.objects)?, workers, &output)?;
     let summary = summarize(loaded.name(), &results);
     if let Some(out) = out {
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;

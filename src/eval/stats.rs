@@ -59,6 +59,9 @@ pub struct Counts {
     pub reached: usize,
     pub picked: usize,
     pub placed: usize,
+    /// Episodes that left the object in another quadrant of the target bin (none where the store holds
+    /// episodes recorded before this was).
+    pub wrong_bin: Option<usize>,
 }
 
 impl Counts {
@@ -69,6 +72,7 @@ impl Counts {
             reached: c.reached + e.reached as usize,
             picked: c.picked + e.picked as usize,
             placed: c.placed + e.placed as usize,
+            wrong_bin: Some(c.wrong_bin.unwrap_or(0) + e.wrong_bin as usize),
         })
     }
 
@@ -79,6 +83,11 @@ impl Counts {
             reached: self.reached + o.reached,
             picked: self.picked + o.picked,
             placed: self.placed + o.placed,
+            wrong_bin: match (self.episodes, o.episodes) {
+                (0, _) => o.wrong_bin,
+                (_, 0) => self.wrong_bin,
+                _ => self.wrong_bin.zip(o.wrong_bin).map(|(a, b)| a + b),
+            },
         }
     }
 }
@@ -127,6 +136,15 @@ mod tests {
         assert!((zero.high - 0.1611).abs() < 5e-4, "{zero:?}");
         let all = wilson(160, 160);
         assert!((all.low - 0.9766).abs() < 5e-4 && all.high == 1.0, "{all:?}");
+    }
+
+    #[test]
+    fn wrong_bin_counts_add_up_and_stay_unknown_where_any_part_is() {
+        let known = Counts { episodes: 4, reached: 3, picked: 2, placed: 1, wrong_bin: Some(1) };
+        let old = Counts { episodes: 2, wrong_bin: None, ..known };
+        assert_eq!(known.plus(&known).wrong_bin, Some(2));
+        assert_eq!(known.plus(&old).wrong_bin, None);
+        assert_eq!(Counts::default().plus(&known).wrong_bin, Some(1));
     }
 
     #[test]

@@ -58,6 +58,7 @@ mod tests {
             reached: stages[0],
             picked: stages[1],
             placed: stages[2],
+            wrong_bin: false,
             steps: 1,
             first_reached: None,
             first_picked: None,

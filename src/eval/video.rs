@@ -6,9 +6,10 @@ use crate::sim::action::Action;
 use crate::sim::camera::ImageSize;
 use crate::sim::env::{Env, WorldConfig};
 use crate::sim::milestones::Milestones;
+use crate::sim::object::Object;
 use crate::sim::robot::Robot;
 use crate::sim::rollout::run_expert;
-use crate::sim::task::{Instance, Task};
+use crate::sim::task::{Instance, NUM_OBJECTS, Task};
 use anyhow::{Context, Result, bail};
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame, Rgba, RgbaImage};
@@ -54,16 +55,18 @@ pub fn replay(
     world: &WorldConfig,
     size: ImageSize,
     result: &EpisodeResult,
+    objects: [Object; NUM_OBJECTS],
     commands: &[Action],
     demo_max_actions: usize,
 ) -> Result<Replayed> {
     let world = WorldConfig { image: size, ..world.clone() };
     let task = Task::from_id(result.task)?;
     let mut demo_env = Env::new(Robot::Sawyer, &world, true)?;
-    let demo = run_expert(&mut demo_env, &Instance::sample(task, result.demo_seed), demo_max_actions, true)?;
+    let demo =
+        run_expert(&mut demo_env, &Instance::sample_with(task, result.demo_seed, objects), demo_max_actions, true)?;
     let demo: Vec<Vec<u8>> = demo.steps.into_iter().filter_map(|s| s.frame).collect();
     let mut env = Env::new(Robot::Panda, &world, true)?;
-    env.reset(&Instance::sample(task, result.agent_seed))?;
+    env.reset(&Instance::sample_with(task, result.agent_seed, objects))?;
     let mut agent = vec![(env.render()?, Milestones::default())];
     for action in commands {
         env.step(action);
@@ -158,6 +161,7 @@ mod tests {
             reached: true,
             picked: false,
             placed: false,
+            wrong_bin: false,
             steps: 3,
             first_reached: Some(1),
             first_picked: None,

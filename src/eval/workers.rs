@@ -8,9 +8,10 @@ use crate::sim::camera::Camera;
 use crate::sim::env::{Env, WorldConfig};
 use crate::sim::expert::{Expert, Guidance};
 use crate::sim::milestones::Milestones;
+use crate::sim::object::Object;
 use crate::sim::robot::Robot;
 use crate::sim::rollout::run_expert;
-use crate::sim::task::{Instance, Task};
+use crate::sim::task::{Instance, NUM_OBJECTS, Task};
 use anyhow::{Context, Result, bail};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -21,13 +22,15 @@ use std::thread::JoinHandle;
 /// reference policy inside the worker.
 pub type Chooser = Actor<()>;
 
-/// One evaluation episode: a task, the agent's layout and the demonstrator's layout.
+/// One evaluation episode: a task, the agent's layout and the demonstrator's layout of the environment's objects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct EpisodeSpec {
     pub index: usize,
     pub task: usize,
     pub agent_seed: u64,
     pub demo_seed: u64,
+    /// The environment's objects by slot, in both scenes.
+    pub objects: [Object; NUM_OBJECTS],
 }
 
 /// What a worker reports after starting an episode.
@@ -108,8 +111,8 @@ impl Worker {
         let mut out = Vec::with_capacity(specs.len());
         for (slot, spec) in self.slots.iter_mut().zip(&specs) {
             let task = Task::from_id(spec.task)?;
-            let (demo_frames, demo_seed) = demonstrate(&mut self.demo_env, task, spec.demo_seed, &self.spec)?;
-            slot.env.reset(&Instance::sample(task, spec.agent_seed))?;
+            let (demo_frames, demo_seed) = demonstrate(&mut self.demo_env, task, spec, &self.spec)?;
+            slot.env.reset(&Instance::sample_with(task, spec.agent_seed, spec.objects))?;
             slot.expert = (self.spec.chooser == Actor::Expert).then(|| Expert::new(&slot.env));
             slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
             let frame = slot.env.render_with(camera)?;
@@ -144,10 +147,11 @@ impl Worker {
 }
 
 /// Runs the demonstrator's expert until it places the object (fresh layouts on failure); returns its frames.
-fn demonstrate(env: &mut Env, task: Task, seed: u64, spec: &WorkerSpec) -> Result<(Vec<Vec<u8>>, u64)> {
+fn demonstrate(env: &mut Env, task: Task, episode: &EpisodeSpec, spec: &WorkerSpec) -> Result<(Vec<Vec<u8>>, u64)> {
+    let seed = episode.demo_seed;
     for attempt in 0..spec.demo_attempts {
         let s = if attempt == 0 { seed } else { derive_seed("eval-demo-retry", &[seed, attempt as u64]) };
-        let episode = run_expert(env, &Instance::sample(task, s), spec.demo_max_actions, true)?;
+        let episode = run_expert(env, &Instance::sample_with(task, s, episode.objects), spec.demo_max_actions, true)?;
         if episode.milestones.placed {
             let frames = episode.steps.into_iter().map(|s| s.frame.expect("rendered")).collect();
             return Ok((frames, s));

@@ -1,6 +1,6 @@
 //! What a report makes of the store's records: the experiment's cells grouped into rows (one configuration over
 //! its seeds) with pooled and mean-over-seeds rates, and success against training steps.
-use crate::eval::stats::{Counts, Rate, StageRates};
+use crate::eval::stats::{Counts, Rate, StageRates, wilson};
 use crate::pipeline::store::Store;
 use crate::pipeline::store::read::CellRecord;
 use anyhow::Result;
@@ -24,6 +24,11 @@ pub struct ResultRow {
     pub pooled: Option<[Rate; 3]>,
     /// The same as a mean over seeds (t interval).
     pub mean: Option<[Rate; 3]>,
+    /// The evaluation world's objects (`library`: the multi-object world's held-out objects).
+    pub objects: Option<String>,
+    /// Episodes that left the object in another quadrant, pooled (Wilson); none where a seed's episodes were
+    /// stored before this was recorded.
+    pub wrong_bin: Option<Rate>,
     /// Keys of the train and eval stages behind the numbers.
     pub train_keys: Vec<String>,
     pub eval_keys: Vec<String>,
@@ -45,6 +50,8 @@ impl ResultRow {
             seeds_total: 1,
             pooled: None,
             mean: None,
+            objects: None,
+            wrong_bin: None,
             train_keys: Vec::new(),
             eval_keys: Vec::new(),
         }
@@ -79,6 +86,8 @@ pub fn rows(cells: &[CellRecord]) -> Vec<ResultRow> {
                     seeds_total: 0,
                     pooled: None,
                     mean: None,
+                    objects: c.objects.clone(),
+                    wrong_bin: None,
                     train_keys: Vec::new(),
                     eval_keys: Vec::new(),
                 });
@@ -99,6 +108,7 @@ pub fn rows(cells: &[CellRecord]) -> Vec<ResultRow> {
         }
         let total = done.iter().fold(Counts::default(), |a, c| a.plus(c));
         r.pooled = Some(StageRates::of(&total).rates());
+        r.wrong_bin = total.wrong_bin.map(|w| wilson(w, total.episodes));
         let per_seed: Vec<StageRates> = done.iter().map(StageRates::of).collect();
         r.mean = Some(StageRates::mean_over(&per_seed).rates());
     }

@@ -127,6 +127,15 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         index += &tables::steps_markdown(&step_curves);
         index += "\n![success against training steps](success_vs_steps.png)\n";
     }
+    let multi_object: Vec<&ResultRow> = rows.iter().filter(|r| r.objects.as_deref() == Some("library")).collect();
+    if !multi_object.is_empty() {
+        let table = tables::multi_object_markdown(&multi_object);
+        write("multi_object.md", &table)?;
+        index += "\n## Multi-object environments: held-out objects\n\nEvaluated in environments of the library's four \
+                  held-out objects; \"wrong bin\" counts the episodes that left the object in another quadrant of \
+                  the target bin (latched, so an episode can count there and as placed).\n\n";
+        index += &table;
+    }
     index += &videos::copy_and_list(store, &rows, &staging)?;
     index += "\n## Figures\n\n![success per configuration](success_by_configuration.png)\n\n";
     if architectures.len() > 1 {

@@ -36,6 +36,39 @@ pub fn markdown(rows: &[ResultRow]) -> String {
     s
 }
 
+/// Markdown table of the multi-object rows: stages with intervals, the episodes that left the object in another
+/// quadrant ("wrong bin", the failure the paper names), and the paper's pick and place on held-out objects.
+pub fn multi_object_markdown(rows: &[&ResultRow]) -> String {
+    let mut s = String::from(
+        "| model | seeds | reach % [95% CI] | pick % [95% CI] | place % [95% CI] | wrong bin % [95% CI] | paper pick % | \
+         paper place % |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n",
+    );
+    let paper = |v: Option<(f64, Option<f64>)>| match v {
+        Some((v, Some(h))) => format!("{v:.1} ± {h:.1}"),
+        Some((v, None)) => format!("about {v:.0}"),
+        None => String::new(),
+    };
+    for r in rows {
+        let cells: Vec<String> = match &r.pooled {
+            Some(p) => p.iter().map(pct).collect(),
+            None => vec!["missing".into(); 3],
+        };
+        let wrong = r.wrong_bin.as_ref().map(pct).unwrap_or_else(|| "missing".into());
+        let reported = super::paper::paper_multi_object(r);
+        s += &format!(
+            "| {} | {} | {} | {} | {} | {wrong} | {} | {} |\n",
+            r.label,
+            seeds(r),
+            cells[0],
+            cells[1],
+            cells[2],
+            paper(reported.map(|p| p[0])),
+            paper(reported.map(|p| p[1]))
+        );
+    }
+    s
+}
+
 /// Markdown table of success against training steps: one line per configuration and evaluated step.
 pub fn steps_markdown(curves: &[StepCurve]) -> String {
     let mut s = String::from("| model | step | reach % [95% CI] | pick % [95% CI] | place % [95% CI] |\n");

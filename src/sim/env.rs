@@ -6,11 +6,11 @@ use super::camera::{Camera, ImageSize, project};
 use super::ids::SceneIds;
 use super::ik::IkSolver;
 use super::milestones::{MilestoneInputs, Milestones};
-use super::object::Object;
+use super::object::{Object, Split, environment_objects};
 use super::robot::Robot;
 use super::rotation::{downward, from_angle_axis, mat_from_mj, to_angle_axis, yaw_of};
 use super::scene::build_model;
-use super::task::{Instance, NUM_OBJECTS, in_quadrant};
+use super::task::{Instance, NUM_OBJECTS, NUM_TARGETS, in_quadrant};
 use anyhow::{Result, bail};
 use mujoco_rs::prelude::*;
 use nalgebra::{DMatrix, Vector3};
@@ -81,6 +81,15 @@ impl ObjectSet {
         match self {
             ObjectSet::Base => Object::ALL.to_vec(),
             ObjectSet::Library => Object::library().collect(),
+        }
+    }
+
+    /// The four objects, by slot, of the environment with seed `seed` drawn from `split` (the base world's four
+    /// whatever the seed).
+    pub fn environment(self, split: Split, seed: u64) -> [Object; NUM_OBJECTS] {
+        match self {
+            ObjectSet::Base => Object::ALL,
+            ObjectSet::Library => environment_objects(split, seed),
         }
     }
 }
@@ -443,6 +452,7 @@ impl Env {
             object_z: p[2],
             start_z: self.start_z,
             in_target: in_quadrant(task.target, [p[0], p[1]]),
+            in_other_quadrant: (0..NUM_TARGETS).any(|q| q != task.target && in_quadrant(q, [p[0], p[1]])),
         });
     }
 }

@@ -16,6 +16,10 @@ pub struct Milestones {
     pub reached: bool,
     pub picked: bool,
     pub placed: bool,
+    /// The object rested in the target bin in a quadrant other than the task's (the paper's "wrong bin" failure).
+    /// Left out of serialised stages when false, so trajectories recorded before it read and write the same.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub wrong_bin: bool,
 }
 
 /// The facts one step's stage update needs.
@@ -27,6 +31,8 @@ pub struct MilestoneInputs {
     pub start_z: f64,
     /// Whether the object's (x, y) lies in the task's target quadrant.
     pub in_target: bool,
+    /// Whether the object's (x, y) lies in another quadrant of the target bin.
+    pub in_other_quadrant: bool,
 }
 
 impl Milestones {
@@ -39,8 +45,12 @@ impl Milestones {
         if self.reached && s.object_z > s.start_z + LIFT_HEIGHT {
             self.picked = true;
         }
-        if s.in_target && s.object_z > PLACED_Z.0 && s.object_z < PLACED_Z.1 {
+        let resting = s.object_z > PLACED_Z.0 && s.object_z < PLACED_Z.1;
+        if s.in_target && resting {
             self.placed = true;
+        }
+        if s.in_other_quadrant && resting {
+            self.wrong_bin = true;
         }
     }
 
@@ -55,7 +65,7 @@ mod tests {
     use super::*;
 
     fn inputs(g: [f64; 3], z: f64, in_target: bool) -> MilestoneInputs {
-        MilestoneInputs { object_in_gripper: g, object_z: z, start_z: 0.85, in_target }
+        MilestoneInputs { object_in_gripper: g, object_z: z, start_z: 0.85, in_target, in_other_quadrant: false }
     }
 
     #[test]
@@ -71,6 +81,17 @@ mod tests {
         assert!(!s.placed, "carried high above the quadrant is not placed");
         s.update(&inputs([0.0, 0.0, 0.3], 0.86, true));
         assert_eq!(s.as_bytes(), [1, 1, 1]);
+        assert!(!s.wrong_bin);
+    }
+
+    #[test]
+    fn resting_in_another_quadrant_is_the_wrong_bin_not_placed() {
+        let mut s = Milestones::default();
+        let other = |z| MilestoneInputs { in_other_quadrant: true, ..inputs([0.0, 0.0, 0.3], z, false) };
+        s.update(&other(1.0));
+        assert!(!s.wrong_bin, "carried high over another quadrant is not yet the wrong bin");
+        s.update(&other(0.86));
+        assert!(s.wrong_bin && !s.placed);
     }
 
     #[test]

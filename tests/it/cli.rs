@@ -106,6 +106,20 @@ fn an_unknown_architecture_to_benchmark_is_an_error_naming_it() {
 }
 
 #[test]
+fn the_world_benchmark_times_collection_in_the_multi_object_world() {
+    let args = ["bench", "world", "--objects", "library", "--episodes", "1", "--height", "32", "--width", "40"];
+    let out = oneshot().args(args).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("Library objects"), "{text}");
+    let rate = |label: &str| -> f64 {
+        let line = text.lines().find(|l| l.trim_start().starts_with(label)).expect(label);
+        line.split("physics steps/s").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap()
+    };
+    assert!(rate("collection") > 0.0 && rate("bare step+render") > 0.0, "{text}");
+}
+
+#[test]
 fn a_train_config_with_a_pretrain_section_is_refused_naming_the_file() {
     let dir = std::env::temp_dir().join(format!("oneshot-test-cli-pretrain-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -495,6 +509,23 @@ fn a_store_newer_than_the_binary_is_refused_and_an_older_one_is_migrated() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(version(), oneshot_lab::pipeline::store::SCHEMA_VERSION);
     assert!(columns().contains(&"code_digest".to_string()) && columns().contains(&"code_commit".to_string()));
+
+    // A version-2 store's episodes do not say whether the object ended in another quadrant: migrating adds the
+    // column, empty for the episodes already there.
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    conn.execute_batch("ALTER TABLE episodes DROP COLUMN wrong_bin").unwrap();
+    drop(conn);
+    set_version(2);
+    let out = oneshot().args(["status", "--store", store_arg]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(version(), oneshot_lab::pipeline::store::SCHEMA_VERSION);
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    assert!(
+        conn.prepare("SELECT 1 FROM pragma_table_info('episodes') WHERE name = 'wrong_bin'")
+            .unwrap()
+            .exists([])
+            .unwrap()
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -216,3 +216,57 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
     assert!(err.to_string().contains("number of batches"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn multi_object_collections_lay_out_training_objects_and_pair_within_an_environment() {
+    use oneshot_lab::data::pairs::{FrameForm, PairDataset, Split, Windows};
+    use oneshot_lab::model::config::ModelConfig;
+    use oneshot_lab::sim::env::ObjectSet;
+    use oneshot_lab::sim::task::{Instance, Task};
+    use rand::SeedableRng;
+    let dir = scratch("data-library");
+    // Six slots of three tasks: three environments of two instances, the last of which validates.
+    let library = |robot| {
+        let mut c = tiny(robot, vec![1, 6, 11], 6);
+        c.world.objects = ObjectSet::Library;
+        c.world.close_on_arrival = true;
+        c
+    };
+    let mut environment_of = std::collections::HashMap::new();
+    for robot in [Robot::Sawyer, Robot::Panda] {
+        let config = library(robot);
+        let folder = dir.join(robot.to_string());
+        let manifest = collect(&config, &folder, 2, false).unwrap();
+        for e in &manifest.trajectories {
+            let env = e.environment.unwrap();
+            assert_eq!(env, e.index as u64 / 2);
+            let objects = config.objects(Some(env));
+            assert!(objects.iter().all(|o| !o.held_out()), "{objects:?}");
+            // The stored first frame lays out the environment's objects: their footprints decide where each lies.
+            let traj = Trajectory::load(&folder.join(&e.file)).unwrap();
+            let laid = Instance::sample_with(Task::from_id(e.task).unwrap(), e.instance_seed, objects);
+            for (pose, want) in traj.object_poses[0].iter().zip(&laid.objects) {
+                let off = (pose[0] as f64 - want.pos[0]).hypot(pose[1] as f64 - want.pos[1]);
+                assert!(off < 0.02, "{}: an object lies {off:.3} m from its layout", e.file);
+            }
+            environment_of.insert((robot, e.instance_seed), env);
+        }
+    }
+    let data = PairDataset::open(&dir.join("sawyer"), &dir.join("panda"), 0.1, None).unwrap();
+    // Within an environment: two environments of 2 x 2 pairs per task train (pairing across them would give 4 x 4).
+    assert_eq!(data.pairs(Split::Train), 3 * 2 * 2 * 2);
+    assert_eq!(data.pairs(Split::Val), 3 * 2 * 2);
+    let model = ModelConfig::default();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    for split in [Split::Train, Split::Val] {
+        for _ in 0..20 {
+            let s = data.sample(&mut rng, split, &model, Windows::FromStart, None, FrameForm::Raw).unwrap();
+            let (demo, agent) = data.trajectory(s.source);
+            let env = |robot, t: &Trajectory| environment_of[&(robot, t.meta.instance_seed)];
+            assert_eq!(env(Robot::Sawyer, demo), env(Robot::Panda, agent));
+            assert_eq!((demo.meta.task, agent.meta.task), (s.task, s.task));
+            assert_eq!(env(Robot::Panda, agent) == 2, split == Split::Val);
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -6,7 +6,8 @@ use oneshot_lab::eval::run::run_eval;
 use oneshot_lab::eval::{Actor, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
-use oneshot_lab::sim::env::WorldConfig;
+use oneshot_lab::sim::env::{ObjectSet, WorldConfig};
+use oneshot_lab::sim::object::Object;
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint};
 use std::collections::HashSet;
 
@@ -36,6 +37,16 @@ fn the_expert_places_and_the_random_policy_does_not() {
 }
 
 #[test]
+fn in_the_multi_object_world_the_expert_places_the_held_out_objects_in_their_own_quadrants() {
+    let _rng = torch_rng();
+    let library = WorldConfig { objects: ObjectSet::Library, close_on_arrival: true, ..world() };
+    let layouts = Layouts::Fresh(HashSet::new());
+    let (episodes, summary) = run_eval(&Actor::Expert, Some(&library), &config(16, 80), &layouts, 2, None).unwrap();
+    assert!(summary.overall.placed.value >= 14.0 / 16.0, "expert placed {:?}", summary.overall.placed);
+    assert!(episodes.iter().all(|e| !(e.placed && e.wrong_bin)), "a placed object is in its own quadrant");
+}
+
+#[test]
 fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     let _rng = torch_rng();
     let dir = scratch("eval-repeat");
@@ -58,9 +69,9 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
 fn evaluation_layouts_avoid_training_seeds() {
     let _rng = torch_rng();
     let c = config(32, 10);
-    let first = c.episode_specs(&HashSet::new());
+    let first = c.episode_specs(ObjectSet::Base, &HashSet::new());
     let taken: HashSet<u64> = first.iter().take(5).map(|e| e.agent_seed).chain([first[7].demo_seed]).collect();
-    let second = c.episode_specs(&taken);
+    let second = c.episode_specs(ObjectSet::Base, &taken);
     assert!(second.iter().all(|e| !taken.contains(&e.agent_seed) && !taken.contains(&e.demo_seed)));
     assert_eq!(first[10], second[10], "episodes without a clash keep their layouts");
 }
@@ -248,6 +259,7 @@ fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video(
         reached: m.reached,
         picked: m.picked,
         placed: m.placed,
+        wrong_bin: false,
         steps: actions.len(),
         first_reached: None,
         first_picked: None,
@@ -256,7 +268,7 @@ fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video(
     assert!(m.picked, "the expert picks within 40 actions");
 
     // At the policy's size the replay is the episode, frame for frame.
-    let (demo, agent) = replay(&world, world.image, &result, &actions, 100).unwrap();
+    let (demo, agent) = replay(&world, world.image, &result, Object::ALL, &actions, 100).unwrap();
     assert_eq!(agent.len(), frames.len());
     assert!(agent.iter().zip(&frames).all(|((a, _), f)| a == f), "the replay renders the episode's own frames");
     assert!(!demo.is_empty() && demo[0].len() == frames[0].len());
@@ -264,7 +276,7 @@ fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video(
     // At the video's size, the same path, four times as wide and high.
     let big = video_size(world.image, 160);
     assert_eq!((big.height, big.width), (128, 160));
-    let (demo, agent) = replay(&world, big, &result, &actions, 100).unwrap();
+    let (demo, agent) = replay(&world, big, &result, Object::ALL, &actions, 100).unwrap();
     assert_eq!(agent.len(), frames.len());
     assert!(agent.iter().map(|(f, _)| f).chain(&demo).all(|f| f.len() == big.rgb_len()));
     assert_eq!(agent.last().unwrap().1, m);
@@ -272,6 +284,6 @@ fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video(
 
     // A replay that does not end where the episode did is refused.
     let claimed = EpisodeResult { placed: !m.placed, ..result };
-    let err = replay(&world, world.image, &claimed, &actions, 100).unwrap_err().to_string();
+    let err = replay(&world, world.image, &claimed, Object::ALL, &actions, 100).unwrap_err().to_string();
     assert!(err.contains("replay of episode 0"), "{err}");
 }

@@ -529,3 +529,51 @@ fn a_byte_changed_in_any_artifact_is_caught_before_use_and_the_stage_recomputed(
     assert!(recorded.starts_with("artifacts/eval/"), "{recorded}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_multi_object_experiment_runs_in_library_environments_and_reports_the_wrong_bin() {
+    let dir = scratch("pipeline-multi-object");
+    let (file, store) = (dir.join("objects.toml"), dir.join("runs"));
+    let text = r#"name = "objects"
+[world]
+image = { height = 32, width = 40 }
+objects = "library"
+close_on_arrival = true
+[collect]
+tasks = [0, 5]
+[model]
+backbone_width = 8
+attention_inner = 16
+embed_hidden = 32
+[train]
+steps = 2
+batch_size = 2
+val_interval = 2
+val_batches = 1
+[eval]
+episodes = 4
+horizon = 80
+batch = 4
+tasks = [0, 5]
+[grid]
+sizes = [8]
+references = ["expert"]
+"#;
+    std::fs::write(&file, text).unwrap();
+    run(&file, &store);
+    let conn = db(&store);
+    // Two environments of two instances per task and robot; every episode recorded whether it ended in the wrong bin.
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM episodes WHERE wrong_bin IS NULL"), 0);
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM episodes"), 8);
+    let inputs: String =
+        conn.query_row("SELECT inputs FROM stages WHERE kind = 'collect' LIMIT 1", [], |r| r.get(0)).unwrap();
+    assert!(inputs.contains("\"environment_instances\":2"), "{inputs}");
+    let table = std::fs::read_to_string(store.join("reports/objects/multi_object.md")).unwrap();
+    assert!(table.contains("wrong bin % [95% CI]") && table.contains("paper pick %"), "{table}");
+    let expert = table.lines().find(|l| l.starts_with("| expert |")).expect("the expert's row");
+    assert!(expert.contains("| 0.0 [0.0,"), "the expert never leaves the object in another quadrant: {expert}");
+    assert!(table.lines().any(|l| l.starts_with("| full @ 8 |") && l.contains("50.0 ± 9.9")), "{table}");
+    let index = std::fs::read_to_string(store.join("reports/objects/index.md")).unwrap();
+    assert!(index.contains("## Multi-object environments: held-out objects"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

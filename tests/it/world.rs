@@ -5,10 +5,11 @@ use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::{Env, WorldConfig};
 use oneshot_lab::sim::expert::{Expert, Guidance};
 use oneshot_lab::sim::expert_check::expert_check;
+use oneshot_lab::sim::milestones::Milestones;
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::sim::rollout::run_expert;
 use oneshot_lab::sim::rotation::rotation_error;
-use oneshot_lab::sim::task::{Instance, Task};
+use oneshot_lab::sim::task::{Instance, Task, quadrant_centre};
 use rand::{Rng, SeedableRng};
 
 #[test]
@@ -151,6 +152,26 @@ fn invalid_image_size_is_rejected_with_the_value() {
     assert!(err.contains("8x50"), "{err}");
 }
 
+/// Where a privileged expert closed and opened its gripper on `inst` (DAML-Auxiliary's targets, fed the truth).
+fn grasp_and_drop_of_the_expert(env: &mut Env, inst: &Instance) -> ([f64; 3], [f64; 3]) {
+    let episode = run_expert(env, inst, 100, false).unwrap();
+    let actions: Vec<[f32; 8]> = episode.steps.iter().filter_map(|s| s.action.map(|a| a.0.map(|x| x as f32))).collect();
+    let eef: Vec<[f32; 3]> = episode.steps.iter().map(|s| s.observation.eef_pos.map(|x| x as f32)).collect();
+    let q = grasp_and_drop(&actions, &eef).map(f64::from);
+    ([q[0], q[1], q[2]], [q[3], q[4], q[5]])
+}
+
+/// Runs the scripted expert from `inst`'s layout with the given positions; returns the stages it ended in.
+fn run_guided(env: &mut Env, inst: &Instance, grasp: [f64; 3], drop: [f64; 3]) -> Milestones {
+    env.reset(inst).unwrap();
+    let mut expert = Expert::guided(env, Guidance::Given { grasp, drop });
+    for _ in 0..60 {
+        let action = expert.act(env);
+        env.step(&action);
+    }
+    env.milestones()
+}
+
 #[test]
 fn the_scripted_expert_places_the_object_at_the_positions_it_is_given() {
     // DAML-Auxiliary's execution, fed the true positions: where a privileged expert closed and opened its gripper.
@@ -158,23 +179,27 @@ fn the_scripted_expert_places_the_object_at_the_positions_it_is_given() {
     let mut placed = 0;
     for k in 0..6u64 {
         let inst = Instance::sample(Task::from_id((5 * k as usize) % 16).unwrap(), 300 + k);
-        let episode = run_expert(&mut env, &inst, 100, false).unwrap();
-        let actions: Vec<[f32; 8]> =
-            episode.steps.iter().filter_map(|s| s.action.map(|a| a.0.map(|x| x as f32))).collect();
-        let eef: Vec<[f32; 3]> = episode.steps.iter().map(|s| s.observation.eef_pos.map(|x| x as f32)).collect();
-        let q = grasp_and_drop(&actions, &eef).map(f64::from);
-        let (grasp, drop) = ([q[0], q[1], q[2]], [q[3], q[4], q[5]]);
-        assert!(drop[2] > grasp[2] + 0.1, "the drop point lies above the grasp point: {q:?}");
-
-        env.reset(&inst).unwrap();
-        let mut expert = Expert::guided(&env, Guidance::Given { grasp, drop });
-        for _ in 0..60 {
-            let action = expert.act(&env);
-            env.step(&action);
-        }
-        placed += env.milestones().placed as usize;
+        let (grasp, drop) = grasp_and_drop_of_the_expert(&mut env, &inst);
+        assert!(drop[2] > grasp[2] + 0.1, "the drop point lies above the grasp point: {grasp:?} {drop:?}");
+        placed += run_guided(&mut env, &inst, grasp, drop).placed as usize;
     }
     assert!(placed >= 5, "placed {placed} of 6 from the given positions");
+}
+
+#[test]
+fn an_object_dropped_in_another_quadrant_counts_as_the_wrong_bin_and_not_as_placed() {
+    let mut env = Env::new(Robot::Panda, &small_world(), false).unwrap();
+    let mut wrong = 0;
+    for k in 0..4u64 {
+        let task = Task::from_id((5 * k as usize) % 16).unwrap();
+        let inst = Instance::sample(task, 300 + k);
+        let (grasp, drop) = grasp_and_drop_of_the_expert(&mut env, &inst);
+        let other = quadrant_centre((task.target + 1) % 4);
+        let stages = run_guided(&mut env, &inst, grasp, [other[0], other[1], drop[2]]);
+        assert!(!stages.placed, "task {} placed from a drop over quadrant {}", task.id(), (task.target + 1) % 4);
+        wrong += stages.wrong_bin as usize;
+    }
+    assert!(wrong >= 3, "{wrong} of 4 counted as the wrong bin");
 }
 
 #[test]

@@ -21,10 +21,14 @@ pub fn add(plan: &mut Plan, robot: Robot, per_task: usize, cell: &CellConfig) ->
     plan.add(key_inputs(&job), Vec::new(), super::Job::Collect(job))
 }
 
-/// What a collection's key is made of: the whole configuration, less the world's neutral settings.
+/// What a collection's key is made of: the whole configuration, less the world's neutral settings and, outside
+/// the multi-object world, the environments' size (which only groups library objects).
 fn key_inputs(job: &CollectJob) -> serde_json::Value {
     let mut inputs = serde_json::to_value(job).expect("configurations serialise");
     omit_when(&mut inputs, &super::neutral_world());
+    if !job.library() {
+        inputs["settings"].as_object_mut().expect("settings serialise to an object").remove("environment_instances");
+    }
     inputs
 }
 

@@ -11,7 +11,7 @@
 //!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`;
 //!   `checkpoint_evals(experiment, cell, step, eval_key)`: a cell's evaluations of intermediate checkpoints.
 //! - `episodes(eval_key, idx, task, agent_seed, demo_seed, reached, picked, placed, steps, first_reached,
-//!   first_picked, first_placed)`: every evaluation episode.
+//!   first_picked, first_placed, wrong_bin)`: every evaluation episode (`wrong_bin` null before version 3).
 //! - `metrics(stage_key, name, value)`: scalar results (e.g. `placed`, `final_val_bc`, `trajectories`).
 //! - `loss_curves(train_key, step, split, bc, inverse, point, total)`.
 //!
@@ -34,7 +34,7 @@ pub const DATABASE: &str = "oneshot.sqlite";
 /// Version of the database layout this binary reads and writes (SQLite's `user_version`). Stores from before it
 /// was recorded read 0 and are migrated on their first writable opening ([`migrate`]); a store newer than the
 /// binary is refused rather than misread.
-pub const SCHEMA_VERSION: i64 = 2;
+pub const SCHEMA_VERSION: i64 = 3;
 
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS stages (
@@ -59,7 +59,7 @@ CREATE TABLE IF NOT EXISTS episodes (
     eval_key TEXT NOT NULL, idx INTEGER NOT NULL, task INTEGER NOT NULL, agent_seed TEXT NOT NULL,
     demo_seed TEXT NOT NULL, reached INTEGER NOT NULL, picked INTEGER NOT NULL, placed INTEGER NOT NULL,
     steps INTEGER NOT NULL, first_reached INTEGER, first_picked INTEGER, first_placed INTEGER,
-    PRIMARY KEY (eval_key, idx));
+    wrong_bin INTEGER, PRIMARY KEY (eval_key, idx));
 CREATE TABLE IF NOT EXISTS metrics (
     stage_key TEXT NOT NULL, name TEXT NOT NULL, value REAL NOT NULL, PRIMARY KEY (stage_key, name));
 CREATE TABLE IF NOT EXISTS loss_curves (
@@ -101,6 +101,8 @@ fn migrate(conn: &mut Connection, path: &Path) -> Result<()> {
         // Version 1 -> 2: the code that ran each attempt.
         add_column(&tx, "attempts", "code_commit TEXT", path)?;
         add_column(&tx, "attempts", "code_digest TEXT", path)?;
+        // Version 2 -> 3: whether an episode left the object in another quadrant (unknown before).
+        add_column(&tx, "episodes", "wrong_bin INTEGER", path)?;
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)?;
     }
     tx.commit()?;
@@ -468,7 +470,9 @@ impl Store {
         }
         for e in &results.episodes {
             tx.execute(
-                "INSERT INTO episodes VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
+                "INSERT INTO episodes (eval_key, idx, task, agent_seed, demo_seed, reached, picked, placed, steps,
+                     first_reached, first_picked, first_placed, wrong_bin)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13)",
                 params![
                     key,
                     e.index as i64,
@@ -481,7 +485,8 @@ impl Store {
                     e.steps as i64,
                     e.first_reached.map(|v| v as i64),
                     e.first_picked.map(|v| v as i64),
-                    e.first_placed.map(|v| v as i64)
+                    e.first_placed.map(|v| v as i64),
+                    e.wrong_bin
                 ],
             )?;
         }

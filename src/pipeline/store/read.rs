@@ -33,6 +33,8 @@ pub struct CellRecord {
     pub train_steps: Option<u64>,
     /// Who moved the agent in the evaluation (`scripted_poses`; none for the network's own actions).
     pub control: Option<String>,
+    /// The evaluation world's objects (`library` for the multi-object world; none for the base world).
+    pub objects: Option<String>,
 }
 
 /// One point of a BC loss curve.
@@ -113,6 +115,7 @@ fn counts(r: &rusqlite::Row, first: usize) -> rusqlite::Result<Counts> {
         reached: r.get::<_, i64>(first + 1)? as usize,
         picked: r.get::<_, i64>(first + 2)? as usize,
         placed: r.get::<_, i64>(first + 3)? as usize,
+        wrong_bin: r.get::<_, Option<i64>>(first + 4)?.map(|v| v as usize),
     })
 }
 
@@ -141,7 +144,8 @@ impl Store {
         let mut stmt = self.conn.prepare(
             "SELECT c.cell, c.policy, c.size, c.variant, c.seed, c.train_key, c.eval_key, s.status,
                     json_extract(t.inputs, '$.model.context'), json_extract(t.inputs, '$.model.architecture'),
-                    json_extract(t.inputs, '$.train.steps'), json_extract(s.inputs, '$.eval.control')
+                    json_extract(t.inputs, '$.train.steps'), json_extract(s.inputs, '$.eval.control'),
+                    json_extract(s.inputs, '$.world.objects')
              FROM cells c LEFT JOIN stages s ON s.key = c.eval_key LEFT JOIN stages t ON t.key = c.train_key
              WHERE c.experiment = ?1 ORDER BY c.rowid",
         )?;
@@ -160,6 +164,7 @@ impl Store {
                     architecture: r.get(9)?,
                     train_steps: r.get::<_, Option<i64>>(10)?.map(|v| v as u64),
                     control: r.get(11)?,
+                    objects: r.get(12)?,
                 };
                 Ok((record, r.get::<_, Option<String>>(7)?))
             })?
@@ -180,7 +185,8 @@ impl Store {
     /// Stage counts over the episodes of evaluation `eval_key`.
     pub fn eval_counts(&self, eval_key: &str) -> Result<Counts> {
         Ok(self.conn.query_row(
-            "SELECT COUNT(*), COALESCE(SUM(reached), 0), COALESCE(SUM(picked), 0), COALESCE(SUM(placed), 0)
+            "SELECT COUNT(*), COALESCE(SUM(reached), 0), COALESCE(SUM(picked), 0), COALESCE(SUM(placed), 0),
+                    SUM(wrong_bin)
              FROM episodes WHERE eval_key = ?1",
             params![eval_key],
             |r| counts(r, 0),
@@ -191,7 +197,7 @@ impl Store {
     pub fn checkpoint_counts(&self, experiment: &str) -> Result<Vec<(String, u64, Counts)>> {
         let mut stmt = self.conn.prepare(
             "SELECT ce.cell, ce.step, COUNT(e.idx), COALESCE(SUM(e.reached), 0), COALESCE(SUM(e.picked), 0),
-                    COALESCE(SUM(e.placed), 0)
+                    COALESCE(SUM(e.placed), 0), SUM(e.wrong_bin)
              FROM checkpoint_evals ce JOIN stages s ON s.key = ce.eval_key AND s.status = 'done'
              JOIN episodes e ON e.eval_key = ce.eval_key
              WHERE ce.experiment = ?1 GROUP BY ce.cell, ce.step",
