@@ -108,6 +108,14 @@ pub struct CollectArgs {
     /// Environments in the pool of shared layouts (default: collect.layout_pool, half the trajectories).
     #[arg(long)]
     pub layout_pool: Option<usize>,
+    /// `base` (the four base objects) or `library` (the multi-object world: each environment four of the 26
+    /// training objects).
+    #[arg(long, value_enum, default_value_t = Objects::Base)]
+    pub objects: Objects,
+    /// With `--objects library`: trajectories of each task per environment (default:
+    /// collect.environment_instances, the authors' 2).
+    #[arg(long, requires = "objects")]
+    pub environment_instances: Option<usize>,
     #[command(flatten)]
     pub frames: FrameArgs,
 }
@@ -178,7 +186,7 @@ pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
 
 /// `collect`: expert trajectories into a new dataset folder.
 pub fn collect(a: CollectArgs) -> Result<()> {
-    let world = WorldConfig { close_on_arrival: a.close_on_arrival, ..a.frames.world() };
+    let world = WorldConfig { close_on_arrival: a.close_on_arrival, objects: a.objects.set(), ..a.frames.world() };
     let mut config = CollectConfig { world, ..CollectConfig::paper(a.robot) };
     config.per_task = a.per_task.unwrap_or(config.per_task);
     let s = &mut config.settings;
@@ -193,6 +201,7 @@ pub fn collect(a: CollectArgs) -> Result<()> {
         };
     }
     s.layout_pool = a.layout_pool.or(s.layout_pool);
+    s.environment_instances = a.environment_instances.unwrap_or(s.environment_instances);
     let manifest = collect::collect(&config, &a.out, a.workers.unwrap_or_else(default_workers), true)?;
     let retries: usize = manifest.trajectories.iter().map(|e| e.attempts - 1).sum();
     println!(

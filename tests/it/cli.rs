@@ -76,6 +76,26 @@ fn collect_draws_its_layouts_as_told_and_refuses_a_pool_without_sharing() {
 }
 
 #[test]
+fn collect_groups_library_slots_into_environments_and_refuses_a_pool_there() {
+    let dir = scratch("cli-collect-library");
+    let base = ["collect", "--robot", "sawyer", "--tasks", "3", "--per-task", "3", "--height", "32", "--width", "40"];
+    let library = ["--objects", "library", "--close-on-arrival", "--environment-instances", "2", "--workers", "1"];
+    let out = oneshot().args(base).args(library).arg("--out").arg(dir.join("library")).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("library").join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["config"]["world"]["objects"], "library");
+    let environments: Vec<_> =
+        manifest["trajectories"].as_array().unwrap().iter().map(|e| e["environment"].as_u64()).collect();
+    assert_eq!(environments, [Some(0), Some(0), Some(1)]);
+    let out = oneshot().args(base).args(library).args(["--layout-pool", "4", "--out"]).arg(dir.join("pool")).output();
+    let out = out.unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("collect.layout_pool"));
+    assert!(!dir.join("pool").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn commands_that_read_a_store_refuse_a_folder_without_one() {
     let dir = std::env::temp_dir().join(format!("oneshot-test-cli-nostore-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
