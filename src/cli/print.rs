@@ -12,6 +12,9 @@ pub fn print_summary(s: &EvalSummary) {
     }
     let o = &s.overall;
     println!("{:>4}  {:<22} {:<22} {:<22}", "all", percent(&o.reached), percent(&o.picked), percent(&o.placed));
+    if let Some(w) = &s.wrong_bin {
+        println!("wrong bin (the object at rest in another quadrant): {}", percent(w));
+    }
 }
 
 /// Prints the report with absolute units beside the normalised ones.

@@ -1,7 +1,7 @@
 //! Aggregates of evaluation episodes: success per stage, overall and per task, pooled or as a mean over seeds.
 use super::EpisodeResult;
 pub use super::stats::StageRates;
-use super::stats::{Counts, Rate};
+use super::stats::{Counts, Rate, wilson};
 use crate::sim::task::NUM_TASKS;
 use serde::{Deserialize, Serialize};
 
@@ -18,6 +18,10 @@ pub struct EvalSummary {
     pub overall: StageRates,
     /// In task order; a task without episodes has NaN rates.
     pub per_task: Vec<StageRates>,
+    /// Episodes that left the object in another quadrant of the target bin (none in summaries written before
+    /// it was recorded).
+    #[serde(default)]
+    pub wrong_bin: Option<Rate>,
 }
 
 /// Summarises the episodes of one evaluation of `policy`.
@@ -27,6 +31,7 @@ pub fn summarize(policy: &str, results: &[EpisodeResult]) -> EvalSummary {
         episodes: results.len(),
         overall: pooled(results),
         per_task: (0..NUM_TASKS).map(|t| pooled(results.iter().filter(|e| e.task == t))).collect(),
+        wrong_bin: Some(wilson(results.iter().filter(|e| e.wrong_bin).count(), results.len())),
     }
 }
 
@@ -72,6 +77,9 @@ mod tests {
         let seed_b = vec![episode(0, [true, true, false]), episode(1, [false, false, false])];
         let s = summarize("x", &seed_a);
         assert_eq!((s.overall.reached.value, s.overall.placed.value), (1.0, 0.5));
+        assert_eq!(s.wrong_bin.unwrap().value, 0.0);
+        let wrong = EpisodeResult { wrong_bin: true, ..episode(2, [true, true, false]) };
+        assert_eq!(summarize("x", &[wrong, episode(2, [false; 3])]).wrong_bin.unwrap().value, 0.5);
         assert_eq!(s.per_task[1].picked.value, 0.0);
         assert_eq!(s.per_task[5].reached.n, 0);
         let (all, mean) = across_seeds(&[seed_a, seed_b]);

@@ -568,6 +568,16 @@ references = ["expert"]
     let inputs: String =
         conn.query_row("SELECT inputs FROM stages WHERE kind = 'collect' LIMIT 1", [], |r| r.get(0)).unwrap();
     assert!(inputs.contains("\"environment_instances\":2"), "{inputs}");
+    let artifact: String = conn
+        .query_row(
+            "SELECT s.artifact FROM stages s JOIN cells c ON c.eval_key = s.key WHERE c.cell = 'expert'",
+            [],
+            |r| r.get(0),
+        )
+        .unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(store.join(artifact).join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["wrong_bin"]["value"], 0.0, "{summary}");
     let table = std::fs::read_to_string(store.join("reports/objects/multi_object.md")).unwrap();
     assert!(table.contains("wrong bin % [95% CI]") && table.contains("paper pick %"), "{table}");
     let expert = table.lines().find(|l| l.starts_with("| expert |")).expect("the expert's row");
