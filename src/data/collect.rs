@@ -102,6 +102,7 @@ fn collect_slot(config: &CollectConfig, env: &mut Env, slot: Slot, dir: &Path) -
             task: slot.task,
             index: slot.index,
             environment: config.environment(slot.task, slot.index),
+            objects: config.library().then(|| instance.kinds.iter().map(|o| o.name().to_string()).collect()),
             instance_seed: seed,
             attempts: attempt + 1,
             steps: episode.steps.len(),

@@ -22,6 +22,10 @@ pub struct ManifestEntry {
     /// layout (a retry, a layout of the slot's own); the train/validation split goes by it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub environment: Option<u64>,
+    /// In the multi-object world, the names of the environment's four objects by slot (the task's object is
+    /// `objects[task / 4]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub objects: Option<Vec<String>>,
     /// Expert attempts this slot took (failed layouts are redrawn).
     pub attempts: usize,
     pub steps: usize,

@@ -483,6 +483,7 @@ mod tests {
         config.per_task = 20;
         config.settings.layouts = LayoutSharing::Unique;
         let entry = |index: usize, environment: Option<u64>| ManifestEntry {
+            objects: None,
             file: String::new(),
             task: 3,
             index,

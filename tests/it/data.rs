@@ -242,6 +242,8 @@ fn multi_object_collections_lay_out_training_objects_and_pair_within_an_environm
             assert_eq!(env, e.index as u64 / 2);
             let objects = config.objects(Some(env));
             assert!(objects.iter().all(|o| !o.held_out()), "{objects:?}");
+            let names: Vec<String> = objects.iter().map(|o| o.name().to_string()).collect();
+            assert_eq!(e.objects.as_ref(), Some(&names), "the manifest names the environment's objects");
             // The stored first frame lays out the environment's objects: their footprints decide where each lies.
             let traj = Trajectory::load(&folder.join(&e.file)).unwrap();
             let laid = Instance::sample_with(Task::from_id(e.task).unwrap(), e.instance_seed, objects);
