@@ -73,14 +73,8 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
             );
         }
     }
-    let c = &config.collect;
-    let pooled = c.layouts == crate::data::collect_config::LayoutSharing::Unique || c.layout_pool.is_some();
-    if config.world.objects == crate::sim::env::ObjectSet::Library && pooled {
-        bail!(
-            "{file}: in {what}: collect.layouts and collect.layout_pool do not apply with world.objects = \"library\": \
-             its layouts follow its environments (collect.environment_instances)"
-        );
-    }
+    crate::data::collect_config::check_layouts_in(&config.world, &config.collect)
+        .map_err(|e| anyhow::anyhow!("{file}: in {what}: {e}"))?;
     if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() && config.pretrain.is_none() {
         bail!("{file}: in {what}: model.freeze_backbone = true needs model.pretrained_backbone or [pretrain]");
     }

@@ -102,6 +102,18 @@ impl CollectSettings {
     }
 }
 
+/// Refuses the layout keys that do not apply in the multi-object world, whose layouts follow its environments.
+pub fn check_layouts_in(world: &WorldConfig, settings: &CollectSettings) -> Result<()> {
+    let pooled = settings.layouts == LayoutSharing::Unique || settings.layout_pool.is_some();
+    if world.objects == ObjectSet::Library && pooled {
+        bail!(
+            "collect.layouts and collect.layout_pool do not apply with world.objects = \"library\": its layouts \
+             follow its environments (collect.environment_instances)"
+        );
+    }
+    Ok(())
+}
+
 /// One collection: `per_task` trajectories of each task by `robot` in `world`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -125,12 +137,7 @@ impl CollectConfig {
         if self.per_task == 0 {
             bail!("collect.per_task must be at least 1");
         }
-        if self.library() && (self.settings.layouts == LayoutSharing::Unique || self.settings.layout_pool.is_some()) {
-            bail!(
-                "collect.layouts and collect.layout_pool do not apply with world.objects = \"library\": there the \
-                 layouts follow the environments (collect.environment_instances)"
-            );
-        }
+        check_layouts_in(&self.world, &self.settings)?;
         self.settings.validate()
     }
 
