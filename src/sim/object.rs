@@ -95,7 +95,7 @@ const CATALOGUE: [ObjectModel; 4 + LIBRARY_SIZE] = [
     patterned("box_chips", Shape::Box([0.030, 0.015, 0.050]), [0.15, 0.15, 0.55], Pattern::Stripes([0.95, 0.8, 0.1])),
     plain("box_eraser", Shape::Box([0.025, 0.013, 0.024]), [0.95, 0.55, 0.65]),
     // Cylinders.
-    plain("cyl_tallcan", cyl(0.020, 0.055), [0.75, 0.75, 0.78]),
+    plain("cyl_tallcan", cyl(0.021, 0.048), [0.75, 0.75, 0.78]),
     patterned("cyl_soup", cyl(0.024, 0.035), [0.85, 0.10, 0.10], Pattern::Stripes([0.95, 0.95, 0.95])),
     plain("cyl_puck", cyl(0.027, 0.024), [0.10, 0.10, 0.12]),
     patterned("cyl_sprite", cyl(0.022, 0.045), [0.20, 0.70, 0.35], Pattern::Checker([0.9, 0.9, 0.3])),

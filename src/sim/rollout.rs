@@ -9,8 +9,11 @@ use anyhow::Result;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// Steps the expert keeps holding still after releasing, so the object comes to rest.
+/// Steps the expert holds still after releasing before the episode may end.
 const SETTLE_STEPS: usize = 3;
+/// Steps after releasing by which the episode ends even if the object has not come to rest in its quadrant (a
+/// slow fall or an object caught on the bin's divider).
+const MAX_SETTLE_STEPS: usize = 20;
 
 /// One recorded step: what was seen, and (except on the last step) the action taken from it.
 pub struct Step {
@@ -25,7 +28,8 @@ pub struct Episode {
     pub milestones: Milestones,
 }
 
-/// Runs the expert on `instance` for at most `max_actions` actions, recording frames if `render`.
+/// Runs the expert on `instance` for at most `max_actions` actions, recording frames if `render`. After the
+/// release the expert holds still until the object rests in its quadrant (at least 3 steps, at most 20).
 pub fn run_expert(env: &mut Env, instance: &Instance, max_actions: usize, render: bool) -> Result<Episode> {
     run_expert_perturbed(env, instance, max_actions, render, 0.0)
 }
@@ -49,7 +53,8 @@ pub fn run_expert_perturbed(
     loop {
         let frame = if render { Some(env.render()?) } else { None };
         let observation = env.observe();
-        let finished = steps.len() >= max_actions || settle >= SETTLE_STEPS;
+        let settled = settle >= SETTLE_STEPS && (env.milestones().placed || settle >= MAX_SETTLE_STEPS);
+        let finished = steps.len() >= max_actions || settled;
         if finished {
             steps.push(Step { frame, observation, action: None });
             break;

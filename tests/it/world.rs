@@ -51,18 +51,47 @@ fn a_library_environment_lays_out_its_four_objects_and_parks_the_rest_for_both_r
 }
 
 #[test]
-fn the_expert_places_library_objects_with_both_robots() {
+fn the_expert_places_every_library_object_nine_times_in_ten_with_both_robots() {
     use oneshot_lab::sim::env::ObjectSet;
     use oneshot_lab::sim::expert_check::library_check;
     let world = WorldConfig { objects: ObjectSet::Library, close_on_arrival: true, ..WorldConfig::default() };
     for robot in Robot::ALL {
-        let report = library_check(robot, &world, 2, 0, 100).unwrap();
+        let report = library_check(robot, &world, 10, 0, 100).unwrap();
         assert_eq!(report.per_object.len(), 30);
-        // Every object is reached; placing is not yet 9 in 10 for every object (docs/research/multi-object.md),
-        // so the bar here is the library as a whole.
-        let placed: usize = report.per_object.iter().map(|(_, c)| c[2]).sum();
-        let unreached: Vec<_> = report.per_object.iter().filter(|(_, c)| c[0] < 2).map(|(o, _)| o.name()).collect();
-        assert!(placed >= 50 && unreached.is_empty(), "{robot}: {placed}/60 placed; not reached: {unreached:?}");
+        let below: Vec<_> = report.per_object.iter().filter(|(_, c)| c[2] < 9).map(|(o, c)| (o.name(), c[2])).collect();
+        assert!(below.is_empty(), "{robot}: objects placed fewer than 9 times in 10: {below:?}");
+    }
+}
+
+#[test]
+fn an_expert_episode_ends_once_the_released_object_rests_in_its_quadrant() {
+    use oneshot_lab::sim::env::ObjectSet;
+    use oneshot_lab::sim::expert_check::library_instance;
+    use oneshot_lab::sim::milestones::PLACED_Z;
+    use oneshot_lab::sim::object::Object;
+    // The tuna can and the candle leave the Sawyer's opening fingers slowly: 3 steps after the release they were
+    // still above the bin in 4 of 20 episodes.
+    let world = WorldConfig { objects: ObjectSet::Library, close_on_arrival: true, ..WorldConfig::default() };
+    let mut env = Env::new(Robot::Sawyer, &world, false).unwrap();
+    for name in ["cyl_tuna", "cyl_candle"] {
+        let object = Object::named(name).unwrap();
+        for i in 0..4 {
+            let instance = library_instance(object, i, 0);
+            let episode = run_expert(&mut env, &instance, 100, false).unwrap();
+            let opened = |s: &&oneshot_lab::sim::rollout::Step| s.action.is_some_and(|a| a.gripper() < 0.0);
+            let closed_at = episode.steps.iter().position(|s| s.action.is_some_and(|a| a.gripper() > 0.0)).unwrap();
+            let release = closed_at + episode.steps[closed_at..].iter().position(|s| opened(&s)).unwrap();
+            let last = &episode.steps.last().unwrap().observation;
+            let waited = episode.steps.len() - 1 - release;
+            let z = last.object_poses[env.instance().unwrap().task.object][2];
+            assert!(waited >= 3, "{name} {i}: ended {waited} steps after the release");
+            assert!(
+                last.milestones.placed && z < PLACED_Z.1 || waited == 20,
+                "{name} {i}: ended {waited} steps after the release with the object at {z:.3} m, {:?}",
+                last.milestones
+            );
+            assert!(episode.milestones.placed, "{name} {i}: not placed");
+        }
     }
 }
 

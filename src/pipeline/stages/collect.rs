@@ -10,7 +10,7 @@ use anyhow::Result;
 use std::path::Path;
 
 /// Implementation version of collection (part of every collect key).
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 
 /// What a collect stage runs.
 pub type CollectJob = CollectConfig;

@@ -13,7 +13,7 @@ use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 
 /// Implementation version of evaluation (part of every eval key).
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 
 /// What an eval stage runs: the policy (a network by its train stage key), the world and settings, and the
 /// collections whose layouts it must avoid.
