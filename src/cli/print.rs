@@ -77,4 +77,18 @@ pub fn print_probe(r: &ProbeReport) {
         }
         println!("(heading for one of four objects at random: 25% demonstrated)");
     }
+    if let Some(w) = r.swap {
+        println!("first target with the demonstration swapped ({} windows): mean move in the table plane", w.windows);
+        println!(
+            "  another demonstration of the same task:   {:.1} cm (reading the task: 0)",
+            100.0 * w.moved_same_task
+        );
+        println!(
+            "  a demonstration of the next object:        {:.1} cm (the two objects lie {:.1} cm apart); heads for \
+             that object in {:.1}% of windows",
+            100.0 * w.moved_other_object,
+            100.0 * w.objects_apart,
+            100.0 * w.other_object.demonstrated as f64 / w.other_object.windows.max(1) as f64
+        );
+    }
 }

@@ -303,12 +303,38 @@ impl PairDataset {
             })
             .expect("pick is below the total");
         let agent_k = self.agent_index[s][group][pick];
-        let agent = &self.agents[agent_k];
-        let task = group % NUM_TASKS;
         let demo_list = &self.demo_index[s][group];
         let demo_k = demo_list[rng.random_range(0..demo_list.len())];
-        let demo = &self.demos[demo_k];
+        self.sample_pair(rng, [demo_k, agent_k], model, windows, augment, form)
+    }
 
+    /// The demonstrations of `split` that show task `task` in agent trajectory `agent`'s pair group (its own
+    /// task, or another one for a counterfactual; in the multi-object world, within its environment).
+    pub fn demos_for(&self, split: Split, agent: usize, task: usize) -> &[usize] {
+        let s = split as usize;
+        let Some(group) = self.agent_index[s].iter().position(|g| g.contains(&agent)) else {
+            return &[];
+        };
+        let other = group - group % NUM_TASKS + task;
+        self.demo_index[s].get(other).map_or(&[], Vec::as_slice)
+    }
+
+    /// A sample of demonstration `source[0]` and agent trajectory `source[1]` (indices as in
+    /// [`Sample::source`]): its context frames, window and augmentation drawn from `rng` as [`Self::sample`]
+    /// draws them.
+    pub fn sample_pair<R: Rng>(
+        &self,
+        rng: &mut R,
+        source: [usize; 2],
+        model: &ModelConfig,
+        windows: Windows,
+        augment: Option<&Augmentation>,
+        form: FrameForm,
+    ) -> Result<Sample> {
+        let [demo_k, agent_k] = source;
+        let (demo, agent) = (&self.demos[demo_k], &self.agents[agent_k]);
+        // The task the demonstration shows (a counterfactual pair's differs from the agent's).
+        let task = demo.meta.task;
         let (h, w) = (self.height, self.width);
         let frame_len = 3 * h * w;
         let context_idx = context_indices(rng, demo.len(), model);
@@ -394,6 +420,7 @@ pub enum FrameData {
 
 /// One training sample.
 pub struct Sample {
+    /// The task the demonstration shows.
     pub task: usize,
     /// The demonstration and the agent trajectory it was drawn from (see [`PairDataset::trajectory`]).
     pub source: [usize; 2],

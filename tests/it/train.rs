@@ -3,7 +3,7 @@
 use crate::helpers::torch_rng;
 use oneshot_lab::data::collect::collect;
 use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSharing};
-use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
+use oneshot_lab::data::pairs::{FrameForm, PairDataset, Split, Windows};
 use oneshot_lab::eval::probe::{PositionErrors, open_loop};
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
@@ -25,9 +25,9 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
     for robot in Robot::ALL {
         let config = CollectConfig {
-            per_task: 3,
+            per_task: 4,
             world: world.clone(),
-            settings: tasks(&[0, 6]),
+            settings: CollectSettings { layouts: LayoutSharing::Unique, ..tasks(&[0, 4]) },
             ..CollectConfig::paper(robot)
         };
         collect(&config, &dir.join(robot.name()), 2, false).unwrap();
@@ -67,6 +67,26 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     let choice = report.first_target.expect("windows from the start count first targets");
     assert_eq!((choice.policy.windows, choice.expert.windows, choice.expert.demonstrated), (5, 5, 5));
     assert_eq!(choice.policy.demonstrated + choice.policy.other + choice.policy.still, 5);
+    // Each window is run again with its demonstration swapped: for another of the same task, and for one of the
+    // next object demonstrated to the same quadrant (for task 0 task 4, for task 4 task 0).
+    let swap = report.swap.expect("windows from the start swap their demonstrations");
+    assert!(swap.windows > 0 && swap.windows <= 5 && swap.other_object.windows == swap.windows, "{swap:?}");
+    assert!(swap.objects_apart > 0.02, "two objects of a layout lie apart: {swap:?}");
+    assert!(swap.moved_same_task >= 0.0 && swap.moved_other_object.is_finite(), "{swap:?}");
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
+    for _ in 0..5 {
+        let sample =
+            data.sample(&mut rng, Split::Train, &model, Windows::FromStart, None, FrameForm::Normalised).unwrap();
+        let [demo, agent] = sample.source;
+        let task = data.trajectory([demo, agent]).1.meta.task;
+        assert!(data.demos_for(Split::Train, agent, task).contains(&demo), "a pair's own demonstration is its task's");
+        for d in data.demos_for(Split::Train, agent, 4) {
+            assert_eq!(data.trajectory([*d, agent]).0.meta.task, 4);
+        }
+    }
+    assert!(
+        open_loop(&trained, &data, Split::Train, Windows::Training { start: 0.2 }, 2, 2, 0).unwrap().swap.is_none()
+    );
     for d in 0..8 {
         let mean_of =
             |f: fn(&PositionErrors) -> [f64; 8]| report.by_position.iter().map(|p| f(p)[d]).sum::<f64>() / 6.0;
