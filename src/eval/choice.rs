@@ -21,8 +21,14 @@ pub struct FirstScene {
 impl FirstScene {
     /// The first frames of a demonstration and the agent trajectory it is paired with (same task).
     pub fn of(demo: &Trajectory, agent: &Trajectory) -> FirstScene {
-        let xy = |p: &[f32; 7]| [f64::from(p[0]), f64::from(p[1])];
         let object = Task::from_id(agent.meta.task).expect("a collected trajectory's task is valid").object;
+        FirstScene::with_object(demo, agent, object)
+    }
+
+    /// The same, with `object` (a slot) as the demonstrated one: for a demonstration swapped in from another
+    /// task.
+    pub fn with_object(demo: &Trajectory, agent: &Trajectory, object: usize) -> FirstScene {
+        let xy = |p: &[f32; 7]| [f64::from(p[0]), f64::from(p[1])];
         FirstScene {
             start: [f64::from(agent.eef_pos[0][0]), f64::from(agent.eef_pos[0][1])],
             objects: agent.object_poses[0].each_ref().map(xy),

@@ -233,8 +233,7 @@ fn swap_demonstrations(
     for (j, w) in swaps.iter().enumerate() {
         let own = plane(mode, w.window);
         let (demo, agent) = data.trajectory([w.other_object, w.agent]);
-        let mut scene = FirstScene::of(demo, agent);
-        scene.demonstrated = w.next;
+        let scene = FirstScene::with_object(demo, agent, w.next);
         sums.windows += 1;
         sums.same_task += distance(own, plane(&same, j));
         sums.other_object += distance(own, plane(&other, j));

@@ -2,7 +2,7 @@
 use super::action::Action;
 use super::env::{Env, Observation};
 use super::expert::Expert;
-use super::milestones::Milestones;
+use super::milestones::{Milestones, PLACED_Z};
 use super::task::Instance;
 use crate::seeds::derive_seed;
 use anyhow::Result;
@@ -53,7 +53,10 @@ pub fn run_expert_perturbed(
     loop {
         let frame = if render { Some(env.render()?) } else { None };
         let observation = env.observe();
-        let settled = settle >= SETTLE_STEPS && (env.milestones().placed || settle >= MAX_SETTLE_STEPS);
+        // Placed (a latched stage) and low now: at rest in the quadrant, not lifted out of it again.
+        let object_z = observation.object_poses[instance.task.object][2];
+        let resting = env.milestones().placed && object_z < PLACED_Z.1;
+        let settled = settle >= SETTLE_STEPS && (resting || settle >= MAX_SETTLE_STEPS);
         let finished = steps.len() >= max_actions || settled;
         if finished {
             steps.push(Step { frame, observation, action: None });
