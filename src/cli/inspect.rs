@@ -438,6 +438,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
     }
     let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.dir.store, &experiment.name));
     oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
+    super::print::print_table1(&out)?;
     println!("wrote {}", out.join("index.md").display());
     Ok(())
 }

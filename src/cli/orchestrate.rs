@@ -164,6 +164,7 @@ pub fn run(a: RunArgs) -> Result<()> {
     if opts.only.is_none() {
         let out = oneshot_lab::report::report_dir(root, &experiment.name);
         oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
+        super::print::print_table1(&out)?;
         println!("report: {}", out.join("index.md").display());
     }
     if !report.failed.is_empty() || !report.skipped.is_empty() {

@@ -1,7 +1,9 @@
-//! Tables the evaluation commands print: an evaluation's success rates and the open-loop probe's errors.
+//! Tables the commands print: an evaluation's success rates, the open-loop probe's errors and a report's Table 1.
+use anyhow::{Context, Result};
 use oneshot_lab::eval::probe::ProbeReport;
 use oneshot_lab::eval::summary::{EvalSummary, percent};
 use oneshot_lab::sim::action::{ACTION_DIM, ACTION_RANGES};
+use std::path::Path;
 
 /// Prints the summary as a table.
 pub fn print_summary(s: &EvalSummary) {
@@ -91,4 +93,12 @@ pub fn print_probe(r: &ProbeReport) {
             100.0 * w.other_object.demonstrated as f64 / w.other_object.windows.max(1) as f64
         );
     }
+}
+
+/// Prints the Table 1 of the report written to `report_dir`.
+pub fn print_table1(report_dir: &Path) -> Result<()> {
+    let file = report_dir.join("table1.md");
+    let table = std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
+    println!("Table 1 ({}):\n{table}", file.display());
+    Ok(())
 }

@@ -69,7 +69,10 @@ fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, experiment("[0]", 90, 4)).unwrap();
     // collect x2, train x2, eval x2, random eval.
-    assert_eq!(executed(&run(&file, &store)), 7);
+    let first = run(&file, &store);
+    assert_eq!(executed(&first), 7);
+    let printed = String::from_utf8_lossy(&first.stdout);
+    assert!(printed.contains("| random | 1/1 |"), "the run prints its Table 1: {printed}");
     assert_eq!(executed(&run(&file, &store)), 0, "an unchanged file runs nothing");
 
     // Report numbers equal a direct aggregation, and regenerating gives identical files.
@@ -101,6 +104,9 @@ fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
     let out = oneshot().args(["report", file.to_str().unwrap(), "--store", store.to_str().unwrap()]).output().unwrap();
     assert!(out.status.success());
     assert_eq!(before, files(&report), "a regenerated report is byte-identical");
+    // It prints the Table 1 it wrote.
+    let table1 = std::fs::read_to_string(report.join("table1.md")).unwrap();
+    assert!(String::from_utf8_lossy(&out.stdout).contains(&table1), "report printed no Table 1");
     assert!(before.iter().any(|(p, _)| p.ends_with("loss_curves.png")));
 
     // A new seed: only that seed's two train and two eval stages.
