@@ -54,6 +54,7 @@ pub struct SwapReport {
     /// The swapped-in object's choice counts ("demonstrated" there is the swapped-in object).
     pub other_object: ChoiceCounts,
 }
+
 /// The first targets' choice of object, the policy's and the expert's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FirstTargets {
