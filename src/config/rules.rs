@@ -63,12 +63,13 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
         check(crate::train::check_pretrained_trunk(&config.model).context("[pretrain]"))?;
         let m = &config.model;
         let queries_with_tasks = m.object_attention
-            && m.object_attention_input == crate::model::config::ObjectAttentionInput::Trunk
+            && m.object_attention_input.reads_trunk()
             && m.object_attention_query == crate::model::config::ObjectAttentionQuery::TaskHead;
         if config.pretrain.as_ref().is_some_and(|p| p.object_attention_steps > 0) && !queries_with_tasks {
             bail!(
                 "{file}: in {what}: pretrain.object_attention_steps trains an object attention over the trunk queried \
-                 by task: set model.object_attention = true, model.object_attention_input = \"trunk\" and \
+                 by task: set model.object_attention = true, model.object_attention_input = \"trunk\" (or \
+                 \"frozen_trunk\") and \
                  model.object_attention_query = \"task_head\""
             );
         }
@@ -77,6 +78,15 @@ pub(super) fn resolve(table: &toml::Table, file: &str, what: &str, text: &str) -
         .map_err(|e| anyhow::anyhow!("{file}: in {what}: {e}"))?;
     if config.model.freeze_backbone && config.model.pretrained_backbone.is_none() && config.pretrain.is_none() {
         bail!("{file}: in {what}: model.freeze_backbone = true needs model.pretrained_backbone or [pretrain]");
+    }
+    if config.model.object_attention_input == crate::model::config::ObjectAttentionInput::FrozenTrunk
+        && config.model.pretrained_backbone.is_none()
+        && config.pretrain.is_none()
+    {
+        bail!(
+            "{file}: in {what}: model.object_attention_input = \"frozen_trunk\" freezes a copy of the pretrained \
+             trunk: it needs model.pretrained_backbone or [pretrain]"
+        );
     }
     let t = &config.train;
     for &step in &config.eval.checkpoints {

@@ -49,6 +49,17 @@ pub enum ObjectAttentionInput {
     Mixed,
     /// The trunk's own tokens, before positional encoding and the causal layers (as `localise` reads them).
     Trunk,
+    /// The tokens of a second trunk, a frozen copy of the pretrained one (`selection_backbone.*`, batch norm in
+    /// evaluation mode), while the policy's own trunk is fine-tuned: the selection the pretraining gave cannot
+    /// decay under the other losses. Needs pretrained trunk weights.
+    FrozenTrunk,
+}
+
+impl ObjectAttentionInput {
+    /// Whether it reads trunk tokens (the pretrained trunk's or a frozen copy's), as `localise` does.
+    pub fn reads_trunk(self) -> bool {
+        matches!(self, ObjectAttentionInput::Trunk | ObjectAttentionInput::FrozenTrunk)
+    }
 }
 
 /// What `model.object_attention` asks for in each agent frame.
@@ -182,8 +193,9 @@ pub struct ModelConfig {
     /// with where that object is in the agent's view. A departure: the authors read each agent frame only through
     /// its spatial softmax (false).
     pub object_attention: bool,
-    /// Which tokens the object attention reads: `mixed` (after the causal layers) or `trunk` (the trunk's own,
-    /// as `localise --object-attention` reads them). Only with `object_attention`.
+    /// Which tokens the object attention reads: `mixed` (after the causal layers), `trunk` (the trunk's own,
+    /// as `localise --object-attention` reads them) or `frozen_trunk` (a frozen copy of the pretrained trunk's,
+    /// beside the fine-tuned one; needs `[pretrain]` or `pretrained_backbone`). Only with `object_attention`.
     pub object_attention_input: ObjectAttentionInput,
     /// What the object attention queries with: `embedding` (the task embedding) or `task_head` (the task head's
     /// predicted distribution, detached; needs `task_head`). Only with `object_attention`.
@@ -312,7 +324,9 @@ impl ModelConfig {
             );
         }
         if self.object_attention_input != ObjectAttentionInput::Mixed && !self.object_attention {
-            bail!("model.object_attention_input = \"trunk\" chooses the input of model.object_attention: set it true");
+            bail!(
+                "model.object_attention_input chooses the input of model.object_attention: set model.object_attention = true"
+            );
         }
         if self.object_attention_query == ObjectAttentionQuery::TaskHead && !(self.object_attention && self.task_head) {
             bail!("model.object_attention_query = \"task_head\" needs model.object_attention and model.task_head");

@@ -11,8 +11,9 @@ pub mod throughput;
 
 use crate::data::loader::{AugmentAt, Batch, PrefetchSpec, Prefetcher, build_batch};
 use crate::data::pairs::{PairDataset, Split};
+use crate::model::architectures::transformer::SELECTION_TRUNK;
 use crate::model::batch::DeviceBatch;
-use crate::model::config::ModelConfig;
+use crate::model::config::{ModelConfig, ObjectAttentionInput};
 use crate::model::policy::{Losses, Policy};
 use crate::seeds::derive_seed;
 use crate::sim::env::WorldConfig;
@@ -74,16 +75,18 @@ pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::Var
     let policy = Policy::new(&vs.root(), model);
     if let Some(path) = &model.pretrained_backbone {
         checkpoint::load_backbone(&mut vs, Path::new(path)).context("model.pretrained_backbone")?;
+        checkpoint::load_under(&mut vs, Path::new(path), &format!("{SELECTION_TRUNK}."))?;
     }
     if let Some(path) = &model.pretrained_object_attention
         && checkpoint::load_under(&mut vs, Path::new(path), "")? == 0
     {
         bail!("{path} holds no weight of this model's object attention (model.object_attention = true?)");
     }
-    if model.freeze_backbone {
-        for (_, var) in vs.variables().into_iter().filter(|(name, _)| name.starts_with("backbone.")) {
-            let _ = var.set_requires_grad(false);
-        }
+    let frozen = |name: &str| {
+        (model.freeze_backbone && name.starts_with("backbone.")) || name.starts_with(&format!("{SELECTION_TRUNK}."))
+    };
+    for (_, var) in vs.variables().into_iter().filter(|(name, _)| frozen(name)) {
+        let _ = var.set_requires_grad(false);
     }
     Ok((vs, policy))
 }
@@ -179,6 +182,12 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     config::check_precision(model, config)?;
     if model.freeze_backbone && model.pretrained_backbone.is_none() {
         bail!("model.freeze_backbone = true needs model.pretrained_backbone (a frozen random trunk learns nothing)");
+    }
+    if model.object_attention_input == ObjectAttentionInput::FrozenTrunk && model.pretrained_backbone.is_none() {
+        bail!(
+            "model.object_attention_input = \"frozen_trunk\" needs model.pretrained_backbone (a frozen random trunk \
+             finds nothing)"
+        );
     }
     let device = config.device()?;
     crate::device::autotune_convolutions(device);

@@ -68,6 +68,10 @@ fn a_pretrained_trunk_file_keys_training_by_its_content_and_must_exist() {
     std::fs::write(&frozen, "[model]\nfreeze_backbone = true\n[grid]\nsizes = [16]\n").unwrap();
     let err = format!("{:#}", Experiment::load(&frozen, &Resolution::default()).unwrap_err());
     assert!(err.contains("frozen.toml") && err.contains("model.freeze_backbone"), "{err}");
+    let copy = "[model]\nobject_attention = true\nobject_attention_input = \"frozen_trunk\"\n[grid]\nsizes = [16]\n";
+    std::fs::write(&frozen, copy).unwrap();
+    let err = format!("{:#}", Experiment::load(&frozen, &Resolution::default()).unwrap_err());
+    assert!(err.contains("frozen.toml") && err.contains("frozen_trunk") && err.contains("[pretrain]"), "{err}");
 
     let train_and_eval = |bytes: &[u8]| {
         std::fs::write(&weights, bytes).unwrap();

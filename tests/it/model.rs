@@ -226,6 +226,57 @@ fn the_object_attention_reads_the_trunk_tokens_when_told_and_still_fits_the_gras
 }
 
 #[test]
+fn a_frozen_copy_of_the_pretrained_trunk_feeds_the_object_attention_and_nothing_trains_it() {
+    use oneshot_lab::model::config::{ObjectAttentionInput, ObjectAttentionQuery, PoseHeadInput};
+    let _rng = seeded(8);
+    let dir = scratch("frozen-selection");
+    // A "pretrained" trunk: another network's, so that loading it is visible.
+    let (donor, _) = build_policy(&tiny(), Device::Cpu).unwrap();
+    let trunk: Vec<(String, Tensor)> = donor
+        .variables()
+        .into_iter()
+        .filter_map(|(n, t)| n.strip_prefix("backbone.").map(|n| (n.to_string(), t.detach().copy())))
+        .collect();
+    let trunk_file = dir.join("trunk.safetensors");
+    Tensor::write_safetensors(&trunk, &trunk_file).unwrap();
+    let model = ModelConfig {
+        object_attention: true,
+        object_attention_input: ObjectAttentionInput::FrozenTrunk,
+        object_attention_query: ObjectAttentionQuery::TaskHead,
+        task_head: true,
+        pose_head: true,
+        pose_head_input: PoseHeadInput::Object,
+        pretrained_backbone: Some(trunk_file.to_string_lossy().into()),
+        ..tiny()
+    };
+    let (vs, policy) = build_policy(&model, Device::Cpu).unwrap();
+    let vars = vs.variables();
+    for (name, t) in &trunk {
+        for prefix in ["backbone.", "selection_backbone."] {
+            assert!(vars[&format!("{prefix}{name}")].equal(t), "{prefix}{name} is not the pretrained weight");
+        }
+        assert!(!vars[&format!("selection_backbone.{name}")].requires_grad(), "selection_backbone.{name} trains");
+    }
+    let b = batch(images(2, 4), images(2, 7), [3, 12]);
+    let size = |name: &str| {
+        let g = vars[name].grad();
+        if g.defined() { g.abs().sum(Kind::Float).double_value(&[]) } else { 0.0 }
+    };
+    // The pose loss trains the attention over the frozen copy and never the fine-tuned trunk; behaviour cloning
+    // trains the fine-tuned trunk.
+    policy.losses(&b, true).pose.backward();
+    assert!(size("object_attention.key.weight") > 0.0, "the pose loss does not train the attention");
+    assert_eq!(size("backbone.conv1.weight"), 0.0, "the pose loss reached the fine-tuned trunk");
+    policy.losses(&b, true).bc.backward();
+    assert!(size("backbone.conv1.weight") > 0.0, "behaviour cloning does not train the trunk");
+    // Training-mode passes leave the copy's batch-norm statistics where pretraining left them.
+    let (stats, pretrained_stats) = trunk.iter().find(|(n, _)| n.ends_with("running_mean")).unwrap();
+    assert!(vars[&format!("selection_backbone.{stats}")].equal(pretrained_stats), "the copy's statistics moved");
+    assert!(!vars[&format!("backbone.{stats}")].equal(pretrained_stats), "the fine-tuned trunk's statistics stood");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn the_object_attention_can_query_with_the_task_heads_detached_distribution() {
     use oneshot_lab::model::config::ObjectAttentionQuery;
     let _rng = seeded(6);

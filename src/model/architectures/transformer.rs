@@ -12,6 +12,9 @@ use crate::model::resnet::ResNet18;
 use tch::Tensor;
 use tch::nn::{self, ModuleT};
 
+/// Where the frozen copy of the pretrained trunk lives (`model.object_attention_input = "frozen_trunk"`).
+pub const SELECTION_TRUNK: &str = "selection_backbone";
+
 /// The paper's model.
 pub const TRANSFORMER: Registration = Registration {
     name: "transformer",
@@ -87,6 +90,8 @@ pub struct TransformerPolicy {
     object_attention: Option<ObjectAttention>,
     /// The tokens it reads.
     object_attention_input: ObjectAttentionInput,
+    /// `object_attention_input = "frozen_trunk"`: the frozen copy of the pretrained trunk it reads.
+    selection_trunk: Option<ResNet18>,
     /// What it queries with.
     object_attention_query: ObjectAttentionQuery,
     heads: PolicyHeads,
@@ -116,6 +121,9 @@ impl TransformerPolicy {
             ObjectAttention::new(&vs, query_width, c, config.attention_heads, config.attention_inner)
         });
         let object = object_attention.as_ref().map_or(0, ObjectAttention::width);
+        let selection_trunk = (config.object_attention
+            && config.object_attention_input == ObjectAttentionInput::FrozenTrunk)
+            .then(|| ResNet18::new(&(vs / SELECTION_TRUNK), config.backbone_width, config.backbone_stages));
         let frame = latent + object;
         TransformerPolicy {
             trunk,
@@ -128,6 +136,7 @@ impl TransformerPolicy {
             embed: EmbeddingMlp::new(&(vs / "embed"), 2 * c, hidden, latent, config.dropout),
             object_attention,
             object_attention_input: config.object_attention_input,
+            selection_trunk,
             object_attention_query: config.object_attention_query,
             heads: PolicyHeads::new(vs, latent, frame, object, config),
         }
@@ -135,8 +144,13 @@ impl TransformerPolicy {
 
     /// Trunk features `[B, T, C, h, w]` of normalised images `[B, T, 3, H, W]`.
     fn features(&self, images: &Tensor, train: bool) -> Tensor {
+        Self::features_of(&self.trunk, images, train)
+    }
+
+    /// Features `[B, T, C, h, w]` of `trunk` for images `[B, T, 3, H, W]`.
+    fn features_of(trunk: &ResNet18, images: &Tensor, train: bool) -> Tensor {
         let s = images.size();
-        let f = self.trunk.forward_t(&images.view([s[0] * s[1], s[2], s[3], s[4]]), train);
+        let f = trunk.forward_t(&images.view([s[0] * s[1], s[2], s[3], s[4]]), train);
         let fs = f.size();
         f.view([s[0], s[1], fs[1], fs[2], fs[3]])
     }
@@ -144,7 +158,10 @@ impl TransformerPolicy {
 
 impl PolicyNet for TransformerPolicy {
     fn set_channels_last(&mut self, on: bool) {
-        self.trunk.set_channels_last(on)
+        self.trunk.set_channels_last(on);
+        if let Some(trunk) = &mut self.selection_trunk {
+            trunk.set_channels_last(on);
+        }
     }
 
     fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
@@ -178,6 +195,11 @@ impl PolicyNet for TransformerPolicy {
                 let read = match self.object_attention_input {
                     ObjectAttentionInput::Mixed => agent_frames,
                     ObjectAttentionInput::Trunk => feats.narrow(1, tc, ta),
+                    // Frozen: no gradient, and batch norm keeps the pretraining's statistics.
+                    ObjectAttentionInput::FrozenTrunk => {
+                        let trunk = self.selection_trunk.as_ref().expect("built with the frozen_trunk input");
+                        tch::no_grad(|| Self::features_of(trunk, agent, false))
+                    }
                 };
                 let query = match self.object_attention_query {
                     ObjectAttentionQuery::Embedding => task.shallow_clone(),
