@@ -17,6 +17,24 @@ pub fn print_summary(s: &EvalSummary) {
     if let Some(w) = &s.wrong_bin {
         println!("wrong bin (the object at rest in another quadrant): {}", percent(w));
     }
+    if let Some(g) = &s.grasps {
+        println!("gripper closed (command above 0) at some step: {}", percent(&g.closed));
+        println!(
+            "the object in the gripper's frame at the first close, medians: |x| across the fingers, |y|, z along them"
+        );
+        for (which, offsets) in [("picked", &g.picked), ("not picked", &g.not_picked)] {
+            if let Some(o) = offsets {
+                let cm = |m: f64| 100.0 * m;
+                println!(
+                    "  {which:<11} {:>4} closes   {:5.1} / {:5.1} / {:5.1} cm",
+                    o.closes,
+                    cm(o.across),
+                    cm(o.sideways),
+                    cm(o.along)
+                );
+            }
+        }
+    }
 }
 
 /// Prints the report with absolute units beside the normalised ones.

@@ -8,6 +8,7 @@
 pub mod actor;
 pub mod choice;
 pub mod config;
+pub mod grasps;
 pub mod history;
 pub mod layouts;
 pub mod probe;
@@ -44,6 +45,20 @@ pub struct EpisodeResult {
     pub first_reached: Option<usize>,
     pub first_picked: Option<usize>,
     pub first_placed: Option<usize>,
+    /// Where the task's object was when the agent first commanded its gripper more than half closed (a command
+    /// above 0); none if it never did, and in episodes recorded before it was kept.
+    #[serde(default)]
+    pub first_close: Option<GripperClose>,
+}
+
+/// The task's object relative to the gripper after the step that first commanded the gripper closed: what a
+/// failed grasp missed by.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GripperClose {
+    /// That step (1-based, as `first_reached`).
+    pub step: usize,
+    /// The object in the gripper's frame (x across the fingers, z along them), metres.
+    pub object_in_gripper: [f64; 3],
 }
 
 /// Where strips and videos go, if any are asked for.

@@ -4,7 +4,7 @@ use super::actor::Actor;
 use super::config::{ActionChoice, Control, EvalConfig};
 use super::history::AgentHistory;
 use super::workers::{EpisodeSpec, WorkerPool, WorkerSpec};
-use super::{EpisodeResult, EvalOutput, strip, video};
+use super::{EpisodeResult, EvalOutput, GripperClose, strip, video};
 use crate::data::augment::AugmentDraw;
 use crate::data::pairs::context_indices;
 use crate::data::trajectory::jpeg_round_trip;
@@ -155,6 +155,7 @@ fn run_wave(
             first_reached: None,
             first_picked: None,
             first_placed: None,
+            first_close: None,
         })
         .collect();
 
@@ -188,6 +189,11 @@ fn run_wave(
             hit(s.milestones.placed, &mut r.first_placed);
             (r.reached, r.picked, r.placed) = (s.milestones.reached, s.milestones.picked, s.milestones.placed);
             r.wrong_bin = s.milestones.wrong_bin;
+            if let (None, Some(action), Some(offset)) = (r.first_close, s.action, s.target_in_gripper)
+                && action.gripper() > 0.0
+            {
+                r.first_close = Some(GripperClose { step: t + 1, object_in_gripper: offset });
+            }
             if let (Actor::Network(p), false) = (policy, scripted) {
                 inputs[j].history.push(network_frame(&s.frame, world, p.summary.jpeg_quality)?);
             }

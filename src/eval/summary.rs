@@ -1,5 +1,6 @@
 //! Aggregates of evaluation episodes: success per stage, overall and per task, pooled or as a mean over seeds.
 use super::EpisodeResult;
+use super::grasps::GraspSummary;
 pub use super::stats::StageRates;
 use super::stats::{Counts, Rate, wilson};
 use crate::sim::task::NUM_TASKS;
@@ -22,6 +23,10 @@ pub struct EvalSummary {
     /// it was recorded).
     #[serde(default)]
     pub wrong_bin: Option<Rate>,
+    /// Where the gripper first closed, in episodes that picked and in those that did not (none in summaries
+    /// written before it was recorded).
+    #[serde(default)]
+    pub grasps: Option<GraspSummary>,
 }
 
 /// Summarises the episodes of one evaluation of `policy`.
@@ -32,6 +37,7 @@ pub fn summarize(policy: &str, results: &[EpisodeResult]) -> EvalSummary {
         overall: pooled(results),
         per_task: (0..NUM_TASKS).map(|t| pooled(results.iter().filter(|e| e.task == t))).collect(),
         wrong_bin: Some(wilson(results.iter().filter(|e| e.wrong_bin).count(), results.len())),
+        grasps: Some(GraspSummary::of(results)),
     }
 }
 
@@ -68,6 +74,7 @@ mod tests {
             first_reached: None,
             first_picked: None,
             first_placed: None,
+            first_close: None,
         }
     }
 

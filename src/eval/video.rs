@@ -166,6 +166,7 @@ mod tests {
             first_reached: Some(1),
             first_picked: None,
             first_placed: None,
+            first_close: None,
         };
         let dir = std::env::temp_dir().join(format!("oneshot-video-{}", std::process::id()));
         let path = write_video(&dir, &demo, &agent, size, 10.0, &result).unwrap();

@@ -51,6 +51,8 @@ pub struct Stepped {
     pub milestones: Milestones,
     /// The action the agent executed (none where the episode was left alone).
     pub action: Option<Action>,
+    /// The task's object in the gripper's frame after it (none where the episode was left alone).
+    pub target_in_gripper: Option<[f64; 3]>,
 }
 
 enum Command {
@@ -126,7 +128,12 @@ impl Worker {
         let camera = self.camera.as_mut().context("step before start")?;
         for (slot, command) in self.slots.iter_mut().zip(commands) {
             let Some(given) = command else {
-                out.push(Stepped { frame: Vec::new(), milestones: slot.env.milestones(), action: None });
+                out.push(Stepped {
+                    frame: Vec::new(),
+                    milestones: slot.env.milestones(),
+                    action: None,
+                    target_in_gripper: None,
+                });
                 continue;
             };
             let action = match (given, slot.expert.as_mut(), self.spec.chooser) {
@@ -140,7 +147,12 @@ impl Worker {
             };
             slot.env.step(&action);
             let frame = slot.env.render_with(camera)?;
-            out.push(Stepped { frame, milestones: slot.env.milestones(), action: Some(action) });
+            out.push(Stepped {
+                frame,
+                milestones: slot.env.milestones(),
+                action: Some(action),
+                target_in_gripper: slot.env.target_in_gripper(),
+            });
         }
         Ok(out)
     }

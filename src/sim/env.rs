@@ -441,14 +441,22 @@ impl Env {
         }
     }
 
-    fn update_stages(&mut self) {
-        let Some(inst) = &self.instance else { return };
-        let task = inst.task;
+    /// The task's object in the gripper's frame (x across the fingers, z along them), metres; none before the
+    /// first reset.
+    pub fn target_in_gripper(&self) -> Option<[f64; 3]> {
+        let task = self.instance.as_ref()?.task;
         let p = Vector3::from(self.object_pos(task.object));
         let (ee, r) = self.eef_pose();
         let local = r.transpose() * (p - ee);
+        Some([local[0], local[1], local[2]])
+    }
+
+    fn update_stages(&mut self) {
+        let (Some(inst), Some(object_in_gripper)) = (&self.instance, self.target_in_gripper()) else { return };
+        let task = inst.task;
+        let p = self.object_pos(task.object);
         self.milestones.update(&MilestoneInputs {
-            object_in_gripper: [local[0], local[1], local[2]],
+            object_in_gripper,
             object_z: p[2],
             start_z: self.start_z,
             in_target: in_quadrant(task.target, [p[0], p[1]]),

@@ -27,10 +27,18 @@ fn the_expert_places_and_the_random_policy_does_not() {
         run_eval(&Actor::Expert, Some(&world()), &config(16, 80), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     let placed = expert.overall.placed;
     assert!(placed.value >= 15.0 / 16.0, "expert placed {placed:?}");
+    // The expert closes on its object: every episode records the first close, the picked ones with the object
+    // between the fingers (within the reach radius across and sideways).
+    let grasps = expert.grasps.as_ref().unwrap();
+    assert_eq!(grasps.closed.value, 1.0, "{grasps:?}");
+    let picked = grasps.picked.unwrap();
+    assert!(picked.closes >= 15 && picked.across < 0.03 && picked.sideways < 0.03, "{picked:?}");
     assert!(placed.low < placed.value && placed.high >= placed.value);
     let (episodes, random) =
         run_eval(&Actor::Random, Some(&world()), &config(16, 30), &Layouts::Fresh(none.clone()), 2, None).unwrap();
     assert_eq!(random.overall.placed.value, 0.0);
+    let random_closes = episodes.iter().filter(|e| e.first_close.is_some()).count();
+    assert_eq!(random.grasps.unwrap().closed.value, random_closes as f64 / 16.0);
     assert!(episodes.iter().all(|e| e.steps == 30));
     let tasks: HashSet<usize> = episodes.iter().map(|e| e.task).collect();
     assert_eq!(tasks.len(), 16, "episodes cover every task");
@@ -264,6 +272,7 @@ fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video(
         first_reached: None,
         first_picked: None,
         first_placed: None,
+        first_close: None,
     };
     assert!(m.picked, "the expert picks within 40 actions");
 
