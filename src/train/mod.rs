@@ -75,7 +75,9 @@ pub fn build_policy(model: &ModelConfig, device: tch::Device) -> Result<(nn::Var
     let policy = Policy::new(&vs.root(), model);
     if let Some(path) = &model.pretrained_backbone {
         checkpoint::load_backbone(&mut vs, Path::new(path)).context("model.pretrained_backbone")?;
-        checkpoint::load_under(&mut vs, Path::new(path), &format!("{SELECTION_TRUNK}."))?;
+        if model.object_attention && model.object_attention_input == ObjectAttentionInput::FrozenTrunk {
+            checkpoint::load_under(&mut vs, Path::new(path), &format!("{SELECTION_TRUNK}."))?;
+        }
     }
     if let Some(path) = &model.pretrained_object_attention
         && checkpoint::load_under(&mut vs, Path::new(path), "")? == 0
