@@ -9,13 +9,20 @@
 #   3. EGL on the NVIDIA driver: a contact sheet compared with bench/mesa-contact-sheet.png (rendered by Mesa);
 #   4. a short sixteen-task training and evaluation on the GPU (experiments/learn_gpu_quick.toml).
 # --dry rehearses every command on the CPU with tiny settings (what CI runs), so that the GPU call cannot fail
-# on a typo. BINARY defaults to target/release/oneshot-lab. On the GPU, libtorch's CUDA build comes from the
-# machine's PyTorch; robosuite's assets from ONESHOT_ASSETS or the build's .venv.
+# on a typo. BINARY defaults to .gpu-carry/oneshot-lab where bench/gpu-carry.sh packed one (with MuJoCo's
+# library, the scene's robosuite files and the EGL loader: what a GPU machine without this build needs), else
+# target/release/oneshot-lab. On the GPU, libtorch's CUDA build comes from the machine's PyTorch.
+# GPU_DEADLINE_S (default 570) bounds the whole script: the sixteen-task run gets what the other parts left, and
+# a run cut short still reports the stages it finished.
 set -u
 dry=0
 if [ "${1:-}" = --dry ]; then dry=1; shift; fi
-bin=$(realpath "${1:-target/release/oneshot-lab}")
 root=$(cd "$(dirname "$0")/.." && pwd)
+carry=$root/.gpu-carry
+default_bin=$root/target/release/oneshot-lab
+if [ -x "$carry/oneshot-lab" ]; then default_bin=$carry/oneshot-lab; fi
+bin=$(realpath "${1:-$default_bin}")
+deadline=$(( $(date +%s) + ${GPU_DEADLINE_S:-570} ))
 out_dir=${OUT:-$root/bench/out}
 mkdir -p "$out_dir"
 report="$out_dir/gpu-report.txt"
@@ -23,10 +30,19 @@ exec > >(tee "$report") 2>&1
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 passed=() failed=()
+echo "binary: $bin"
+if [ -d "$carry" ]; then
+  # The packed folder: MuJoCo's library beside the binary's, the scene's assets unpacked outside the checkout.
+  export LD_LIBRARY_PATH="$carry/lib:${LD_LIBRARY_PATH:-}"
+  mkdir -p "$work/assets"
+  python3 -c 'import sys, tarfile; tarfile.open(sys.argv[1]).extractall(sys.argv[2], filter="data")' \
+    "$carry/assets.tar.xz" "$work/assets" || exit 1
+  export ONESHOT_ASSETS=$work/assets
+fi
 
 if [ "$dry" = 1 ]; then
   device=cpu steps=1 size=small per_task=2 height=32 width=40 batches=1 profile=(--profile dry)
-  lab() { "$bin" "$@"; }
+  launch=("$bin")
   # The build's PyTorch lacks its Python dependencies (it is there for libtorch): the reference is only compiled.
   reference() { python3 -m py_compile "$root/bench/reference.py" && echo "(dry: bench/reference.py compiles)"; }
 else
@@ -34,14 +50,17 @@ else
   torch_dir=$(python3 -c "import torch, os; print(os.path.dirname(torch.__file__))") || exit 1
   export LD_LIBRARY_PATH="$torch_dir/lib:$torch_dir/../nvidia/cu13/lib:${LD_LIBRARY_PATH:-}"
   # EGL through the NVIDIA driver (docs/benchmarks.md): the loader's packages, if carried, and the vendor file.
-  if [ -d "$root/.gl" ]; then for f in "$root"/.gl/*.deb; do dpkg -x "$f" /; done; ldconfig; fi
+  for f in "$carry"/gl/*.deb; do [ -f "$f" ] && dpkg -x "$f" /; done
+  ldconfig
   vendor=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
   if [ -f "$vendor" ]; then export __EGL_VENDOR_LIBRARY_FILENAMES=$vendor; fi
   # The binary links libtorch_cpu only; preloading the CUDA library registers libtorch's CUDA backend.
-  lab() { LD_PRELOAD=libtorch_cuda.so "$bin" "$@"; }
+  launch=(env LD_PRELOAD=libtorch_cuda.so "$bin")
   reference() { python3 "$root/bench/reference.py" "$@"; }
   nvidia-smi -L
 fi
+
+lab() { "${launch[@]}" "$@"; }
 
 # part NAME COMMAND...: runs one part, timed; its status joins the summary.
 part() {
@@ -95,16 +114,23 @@ egl() {
 }
 
 learning() {
-  lab run "$root/experiments/learn_gpu_quick.toml" --store "$work/runs" --jobs 2 "${profile[@]}" || return
-  sed -n 1,30p "$work/runs/reports/learn_gpu_quick/index.md"
+  local left=$(( deadline - $(date +%s) )) rc
+  echo "-- $left s left for the run"
+  timeout --signal=INT --kill-after=10 "$left" \
+    "${launch[@]}" run "$root/experiments/learn_gpu_quick.toml" --store "$work/runs" --jobs 2 "${profile[@]}"
+  rc=$?
+  # What finished, also when the deadline cut the run short: every stage's time and metrics.
+  lab query stages --store "$work/runs"
+  lab report "$root/experiments/learn_gpu_quick.toml" --store "$work/runs" >/dev/null 2>&1 &&
+    sed -n 1,30p "$work/runs/reports/learn_gpu_quick/index.md"
   cp -r "$work/runs/reports" "$out_dir/" 2>/dev/null
-  true
+  return "$rc"
 }
 
 part "bench train" train_settings
+part "EGL" egl
 part "collections" collections
 part "bench loader" loader
-part "EGL" egl
 part "sixteen tasks" learning
 echo
 echo "passed: ${passed[*]:-none}"

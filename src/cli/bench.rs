@@ -17,13 +17,14 @@ use oneshot_lab::pipeline::stages::StageOutputs;
 use oneshot_lab::pipeline::store::{Claim, Store};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::WorldConfig;
+use oneshot_lab::train::adam::Adam;
 use oneshot_lab::train::config::{LossWeights, MemoryFormat, Precision, TrainConfig, check_precision};
 use oneshot_lab::train::throughput;
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained};
 use std::collections::HashSet;
 use std::path::PathBuf;
 use std::time::Instant;
-use tch::nn::{ModuleT, OptimizerConfig};
+use tch::nn::ModuleT;
 use tch::{Device, Kind, Tensor, nn};
 
 /// Arguments of the `bench train` command.
@@ -328,6 +329,7 @@ fn bench_train(
         "architecture", "parameters", "s/step", "steps/s", "samples/s", "peak memory", "60k steps"
     );
     let weights = LossWeights::default();
+    let mut parts = Vec::new();
     for name in architectures {
         let model = ModelConfig { architecture: Architecture::named(name), ..c.model.clone() };
         let train = TrainConfig { precision, ..TrainConfig::default() };
@@ -338,15 +340,17 @@ fn bench_train(
         let (vs, mut policy) = build_policy(&model, device)?;
         policy.set_channels_last(memory_format == MemoryFormat::ChannelsLast);
         let parameters: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
-        let mut opt = nn::Adam::default().build(&vs, 5e-4)?;
+        let mut opt = Adam::new(&vs, 5e-4);
         let fresh_peak = reset_peak_rss();
-        let s = seconds_per_step(steps, device, || {
-            let total = {
-                let _precision = precision.scope(device);
-                weights.total(&policy.losses(&batch, true))
-            };
-            opt.backward_step(&total)
-        });
+        let forward = || {
+            let _precision = precision.scope(device);
+            weights.total(&policy.losses(&batch, true))
+        };
+        let s = seconds_per_step(steps, device, || opt.backward_step(&forward()));
+        // The same step in parts: what a fused optimiser step or a captured graph could at most save.
+        let forward_s = seconds_per_step(steps, device, || drop(forward()));
+        let backward_s = seconds_per_step(steps, device, || forward().backward()) - forward_s;
+        parts.push((name.clone(), forward_s, backward_s, s - forward_s - backward_s));
         let memory = match (device, peak_rss_kb()) {
             (Device::Cpu, Some(kb)) if fresh_peak => format!("{:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
             (Device::Cpu, Some(kb)) => format!("<= {:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
@@ -362,6 +366,17 @@ fn bench_train(
             1.0 / s,
             c.batch as f64 / s,
             PAPER_STEPS as f64 * s / 3600.0
+        );
+    }
+
+    println!("  step parts (the same step timed again without the optimiser, then without the backward pass):");
+    for (name, forward, backward, optimiser) in parts {
+        let total = forward + backward + optimiser;
+        println!(
+            "  {name:<18} forward {forward:.3} s ({:.0}%), backward {backward:.3} s ({:.0}%), Adam {optimiser:.3} s ({:.0}%)",
+            100.0 * forward / total,
+            100.0 * backward / total,
+            100.0 * optimiser / total
         );
     }
 
