@@ -65,11 +65,12 @@ fn jitter_hsv(rgb: &Tensor, delta: &Tensor) -> Tensor {
     Tensor::stack(&[r1 + &m, g1 + &m, b1 + &m], 1).clamp(0.0, 1.0)
 }
 
-/// Copies a host tensor of bytes to `device`; from pinned memory the copy does not block the host.
+/// Copies a host tensor of bytes to `device`; from pinned memory the copy does not block the host (from pageable
+/// memory a non-blocking copy is an ordinary one).
 pub fn bytes_to_device(host: &Tensor, device: Device) -> Tensor {
     match device {
         Device::Cpu => host.shallow_clone(),
-        _ => host.to_device_(device, Kind::Uint8, host.is_pinned(device), false),
+        _ => host.to_device_(device, Kind::Uint8, true, false),
     }
 }
 

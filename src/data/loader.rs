@@ -116,7 +116,9 @@ impl Batch {
             let (tc, ta) = (model.context_len() as i64, model.agent_frames as i64);
             let host = |v: &[u8], t: i64| {
                 let x = Tensor::from_slice(v).view([b, t, h, w, 3]);
-                if pin_for.is_cuda() { x.pin_memory(pin_for) } else { x }
+                // `_pin_memory` is what `pin_memory` calls, without its warning (printed per batch) that
+                // naming the device is deprecated: libtorch's C API always names one.
+                if pin_for.is_cuda() { x.internal_pin_memory(pin_for) } else { x }
             };
             // Per sample, context draws then agent draws: reorder into all context frames, then all agent frames.
             let rows = Tensor::from_slice(&draws).view([b, tc + ta, DRAW_LEN as i64]);
