@@ -4,9 +4,9 @@
 # Every figure goes to one report file ($OUT/gpu-report.txt when $OUT is set, else bench/out/), each part timed,
 # and a part that fails does not stop the others; the last lines list what passed and what failed.
 #   1. bench train (fp32, bf16, bf16 + channels-last) beside bench/reference.py (PyTorch eager);
-#   2. two collections at 240x320, then bench loader with host and device augmentation, frames held decoded and
-#      decoded on use;
-#   3. EGL on the NVIDIA driver: a contact sheet compared with bench/mesa-contact-sheet.png (rendered by Mesa);
+#   2. EGL on the NVIDIA driver: a contact sheet compared with bench/mesa-contact-sheet.png (rendered by Mesa);
+#   3. two collections at 240x320, then bench loader with host and device augmentation, frames held decoded and
+#      decoded on use, and four batches built at once;
 #   4. a short sixteen-task training and evaluation on the GPU (experiments/learn_gpu_quick.toml).
 # --dry rehearses every command on the CPU with tiny settings (what CI runs), so that the GPU call cannot fail
 # on a typo. BINARY defaults to .gpu-carry/oneshot-lab where bench/gpu-carry.sh packed one (with MuJoCo's
@@ -100,6 +100,10 @@ loader() {
         --augment-on "$at" $decode || return
     done
   done
+  # Four batches built at once, as a training with train.prefetch = 4 builds them.
+  echo "-- bench loader --augment-on device --at-once 4"
+  lab bench loader --demos "$work/sawyer" --agents "$work/panda" --device "$device" --batches "$batches" \
+    --augment-on device --at-once 4
 }
 
 egl() {

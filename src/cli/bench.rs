@@ -117,12 +117,15 @@ pub struct BenchLoaderArgs {
     /// Samples per batch.
     #[arg(long, default_value_t = 30)]
     pub batch: usize,
-    /// Batches timed (after one warm-up batch).
+    /// Batches timed (after one warm-up group), rounded up to whole groups of `--at-once`.
     #[arg(long, default_value_t = 20)]
     pub batches: usize,
-    /// Threads building each batch (default: CPU cores).
+    /// Threads building the batches (default: CPU cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Batches built at once, in parallel, as a training with `train.prefetch` at this value builds them.
+    #[arg(long, default_value_t = 1)]
+    pub at_once: usize,
     /// Build batches without augmentation.
     #[arg(long)]
     pub no_augment: bool,
@@ -198,11 +201,11 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
         AugmentOnArg::Host => (AugmentAt::Host, "host"),
         AugmentOnArg::Device => (AugmentAt::Device(device), "device"),
     };
-    let rate = throughput::measure(&data, &model, a.batch, a.batches, threads, (augment, at), device)?;
+    let rate = throughput::measure(&data, &model, (a.batch, a.batches), (threads, a.at_once), (augment, at), device)?;
     let frames = a.batch * (model.context_len() + model.agent_frames);
     println!(
         "loader benchmark: {}x{} frames, {} ({} s to open), batch {} ({} frames), augmentation {} on the {}, {} \
-         threads",
+         threads, {} batch(es) built at once",
         data.height,
         data.width,
         format_args!("{held} of {frames_in_all} held decoded, the rest JPEG-decoded on use"),
@@ -211,7 +214,8 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
         frames,
         if augment.is_some() { "on" } else { "off" },
         place,
-        rate.threads
+        rate.threads,
+        rate.at_once
     );
     let per_batch = |s: f64| s / rate.batches as f64;
     println!(

@@ -191,6 +191,26 @@ pub fn build_batch(
     Ok(Batch::from_samples(samples, model, data.height, data.width, pin_for))
 }
 
+/// Builds the batches of `steps` at once, in parallel (each as [`build_batch`] builds it), in step order: what a
+/// single batch leaves serial (stacking its samples, pinning them) then runs beside the other batches' work.
+#[allow(clippy::too_many_arguments)]
+pub fn build_batches(
+    data: &PairDataset,
+    split: Split,
+    model: &ModelConfig,
+    batch_size: usize,
+    seed: u64,
+    steps: std::ops::Range<u64>,
+    windows: Windows,
+    augment: Option<&Augmentation>,
+    at: AugmentAt,
+) -> Vec<Result<Batch>> {
+    steps
+        .into_par_iter()
+        .map(|step| build_batch(data, split, model, batch_size, seed, step, windows, augment, at))
+        .collect()
+}
+
 /// Training batches for steps `start..`: produced ahead on a background thread (`depth` > 0), or built when asked
 /// for (`depth` = 0), which on a machine with few cores avoids batch building and the network step competing for
 /// the same cores.
@@ -213,7 +233,7 @@ pub struct PrefetchSpec {
     pub windows: Windows,
     /// Augmentation ranges of training samples; none: no augmentation.
     pub augment: Option<Augmentation>,
-    /// Ready batches kept queued; 0 builds each batch when it is asked for.
+    /// Ready batches kept queued, built `depth` at a time in parallel; 0 builds each batch when it is asked for.
     pub depth: usize,
     /// Where the frames are augmented.
     pub augment_at: AugmentAt,
@@ -228,20 +248,23 @@ impl Prefetcher {
         }
         let (sender, receiver): (SyncSender<Result<Batch>>, _) = sync_channel(spec.depth);
         let handle = std::thread::spawn(move || {
-            for step in spec.start.. {
-                let batch = build_batch(
+            let group = spec.depth as u64;
+            for first in (spec.start..).step_by(spec.depth) {
+                let batches = build_batches(
                     &data,
                     Split::Train,
                     &spec.model,
                     spec.batch_size,
                     spec.seed,
-                    step,
+                    first..first + group,
                     spec.windows,
                     spec.augment.as_ref(),
                     spec.augment_at,
                 );
-                if sender.send(batch).is_err() {
-                    return;
+                for batch in batches {
+                    if sender.send(batch).is_err() {
+                        return;
+                    }
                 }
             }
         });

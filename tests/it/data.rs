@@ -151,7 +151,7 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
 #[test]
 fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_same_batches() {
     use oneshot_lab::data::augment::Augmentation;
-    use oneshot_lab::data::loader::{AugmentAt, build_batch};
+    use oneshot_lab::data::loader::{AugmentAt, build_batch, build_batches};
     use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
     use oneshot_lab::model::config::ModelConfig;
     use oneshot_lab::train::config::TrainConfig;
@@ -206,13 +206,53 @@ fn the_loader_benchmark_times_the_training_path_and_decoding_on_use_builds_the_s
         assert!(firsts.iter().any(|f| f[..] == s[..8]), "a window from the start begins with a first action");
     }
 
-    for (threads, at) in [(1, AugmentAt::Host), (2, AugmentAt::Host), (2, AugmentAt::Device(Device::Cpu))] {
-        let rate = measure(&on_use, &model, 4, 3, threads, (Some(&aug), at), Device::Cpu).unwrap();
-        assert_eq!((rate.batch_size, rate.batches, rate.threads), (4, 3, threads));
+    // Batches built several at once, as a prefetching training builds them, are the batches built one by one.
+    let windows = TrainConfig::default().windows();
+    let at_once = build_batches(&held, Split::Train, &model, 4, 7, 2..5, windows, Some(&aug), AugmentAt::Host);
+    for (step, batch) in (2..5).zip(at_once) {
+        let one = build_batch(&held, Split::Train, &model, 4, 7, step, windows, Some(&aug), AugmentAt::Host).unwrap();
+        let (a, b) = (batch.unwrap().to_device(&model, held.height, held.width, Device::Cpu), one);
+        let b = b.to_device(&model, held.height, held.width, Device::Cpu);
+        assert!(a.context.equal(&b.context) && a.agent.equal(&b.agent) && a.actions.equal(&b.actions), "step {step}");
+    }
+
+    // A prefetching training's batches (built two at a time on a background thread) are the inline ones.
+    use oneshot_lab::data::loader::{PrefetchSpec, Prefetcher};
+    let spec = |depth| PrefetchSpec {
+        model: model.clone(),
+        batch_size: 4,
+        seed: 7,
+        start: 1,
+        windows,
+        augment: Some(aug.clone()),
+        depth,
+        augment_at: AugmentAt::Host,
+    };
+    let data = std::sync::Arc::new(open());
+    let (mut ahead, mut inline) = (Prefetcher::start(data.clone(), spec(2)), Prefetcher::start(data, spec(0)));
+    for _ in 0..5 {
+        let (a, b) = (ahead.next_batch().unwrap(), inline.next_batch().unwrap());
+        let (a, b) = (
+            a.to_device(&model, held.height, held.width, Device::Cpu),
+            b.to_device(&model, held.height, held.width, Device::Cpu),
+        );
+        assert!(a.context.equal(&b.context) && a.agent.equal(&b.agent) && a.actions.equal(&b.actions));
+    }
+
+    for (threads, at_once, at) in [
+        (1, 1, AugmentAt::Host),
+        (2, 1, AugmentAt::Host),
+        (2, 1, AugmentAt::Device(Device::Cpu)),
+        (2, 2, AugmentAt::Host),
+    ] {
+        let rate = measure(&on_use, &model, (4, 3), (threads, at_once), (Some(&aug), at), Device::Cpu).unwrap();
+        // Three batches in groups of two time two groups.
+        let timed = 3usize.div_ceil(at_once) * at_once;
+        assert_eq!((rate.batch_size, rate.batches, rate.threads, rate.at_once), (4, timed, threads, at_once));
         assert!(rate.build_seconds > 0.0 && rate.copy_seconds > 0.0, "{rate:?}");
         assert!(rate.samples_per_second() > rate.delivered_per_second(), "{rate:?}");
     }
-    let err = measure(&held, &model, 4, 0, 1, (None, AugmentAt::Host), Device::Cpu).unwrap_err();
+    let err = measure(&held, &model, (4, 0), (1, 1), (None, AugmentAt::Host), Device::Cpu).unwrap_err();
     assert!(err.to_string().contains("number of batches"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
