@@ -30,12 +30,15 @@ pub struct CloseOffsets {
 impl GraspSummary {
     /// Of `episodes`.
     pub fn of(episodes: &[EpisodeResult]) -> GraspSummary {
+        GraspSummary::of_closes(episodes.iter().map(|e| (e.picked, e.first_close.map(|c| c.object_in_gripper))))
+    }
+
+    /// Of episodes given as (picked, the object in the gripper's frame at the first close, if it closed).
+    pub fn of_closes(episodes: impl IntoIterator<Item = (bool, Option<[f64; 3]>)>) -> GraspSummary {
+        let episodes: Vec<(bool, Option<[f64; 3]>)> = episodes.into_iter().collect();
         let offsets = |picked: bool| {
-            let closes: Vec<[f64; 3]> = episodes
-                .iter()
-                .filter(|e| e.picked == picked)
-                .filter_map(|e| e.first_close.map(|c| c.object_in_gripper))
-                .collect();
+            let closes: Vec<[f64; 3]> =
+                episodes.iter().filter(|(p, _)| *p == picked).filter_map(|(_, close)| *close).collect();
             (!closes.is_empty()).then(|| CloseOffsets {
                 closes: closes.len(),
                 across: median(closes.iter().map(|o| o[0].abs())),
@@ -44,7 +47,7 @@ impl GraspSummary {
             })
         };
         GraspSummary {
-            closed: wilson(episodes.iter().filter(|e| e.first_close.is_some()).count(), episodes.len()),
+            closed: wilson(episodes.iter().filter(|(_, close)| close.is_some()).count(), episodes.len()),
             picked: offsets(true),
             not_picked: offsets(false),
         }

@@ -136,6 +136,19 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
                   the target bin (latched, so an episode can count there and as placed).\n\n";
         index += &table;
     }
+    let mut grasps = Vec::with_capacity(rows.len());
+    for r in &rows {
+        grasps.push((r, store.grasps(&r.eval_keys)?));
+    }
+    if grasps.iter().any(|(_, g)| g.is_some()) {
+        let table = tables::grasps_markdown(&grasps);
+        write("grasps.md", &table)?;
+        index += "\n## Where the gripper first closed\n\nWhere the task's object's centre lay in the gripper's frame \
+                  after the step that first commanded the gripper closed (from the end-effector point: x across the \
+                  fingers, y along their faces, z along them), medians over the episodes that picked it and those \
+                  that did not: what a failed grasp missed by.\n\n";
+        index += &table;
+    }
     index += &videos::copy_and_list(store, &rows, &staging)?;
     index += "\n## Figures\n\n![success per configuration](success_by_configuration.png)\n\n";
     if architectures.len() > 1 {

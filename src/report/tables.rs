@@ -1,6 +1,7 @@
 //! Results tables as Markdown, LaTeX (booktabs) and CSV. Missing results appear as `missing`.
 use super::data::{ResultRow, StepCurve};
 use super::paper::paper_stages;
+use crate::eval::grasps::{CloseOffsets, GraspSummary};
 use crate::eval::stats::Rate;
 
 const STAGES: [&str; 3] = ["reach", "pick", "place"];
@@ -65,6 +66,38 @@ pub fn multi_object_markdown(rows: &[&ResultRow]) -> String {
             paper(reported.map(|p| p[0])),
             paper(reported.map(|p| p[1]))
         );
+    }
+    s
+}
+
+/// Markdown table of where the gripper first closed, per row pooled over its seeds: how often it closed, and the
+/// medians of the task's object's offset in the gripper's frame (cm) for the episodes that picked it and those
+/// that did not (`not recorded` where episodes were stored before the store kept it).
+pub fn grasps_markdown(rows: &[(&ResultRow, Option<GraspSummary>)]) -> String {
+    let mut s = String::from(
+        "| model | seeds | closed % [95% CI] | picked: closes, median abs x / abs y / z (cm) | not picked: closes, \
+         median abs x / abs y / z (cm) |\n| --- | --- | --- | --- | --- |\n",
+    );
+    let offsets = |o: &Option<CloseOffsets>| match o {
+        Some(o) => {
+            format!("{}: {:.1} / {:.1} / {:+.1}", o.closes, 100.0 * o.across, 100.0 * o.sideways, 100.0 * o.along)
+        }
+        None => "none".into(),
+    };
+    for (r, g) in rows {
+        match g {
+            Some(g) => {
+                s += &format!(
+                    "| {} | {} | {} | {} | {} |\n",
+                    r.label,
+                    seeds(r),
+                    pct(&g.closed),
+                    offsets(&g.picked),
+                    offsets(&g.not_picked)
+                )
+            }
+            None => s += &format!("| {} | {} | not recorded | | |\n", r.label, seeds(r)),
+        }
     }
     s
 }

@@ -546,6 +546,22 @@ fn a_store_newer_than_the_binary_is_refused_and_an_older_one_is_migrated() {
             .exists([])
             .unwrap()
     );
+
+    // A version-3 store's episodes do not say where the gripper first closed: migrating adds the columns.
+    let close_columns = ["closed", "close_step", "close_x", "close_y", "close_z"];
+    for column in close_columns {
+        conn.execute_batch(&format!("ALTER TABLE episodes DROP COLUMN {column}")).unwrap();
+    }
+    drop(conn);
+    set_version(3);
+    let out = oneshot().args(["status", "--store", store_arg]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(version(), oneshot_lab::pipeline::store::SCHEMA_VERSION);
+    let conn = rusqlite::Connection::open(store.join("oneshot.sqlite")).unwrap();
+    for column in close_columns {
+        let mut stmt = conn.prepare("SELECT 1 FROM pragma_table_info('episodes') WHERE name = ?1").unwrap();
+        assert!(stmt.exists([column]).unwrap(), "{column}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

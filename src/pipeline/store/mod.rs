@@ -11,7 +11,10 @@
 //!   `cells(experiment, cell, policy, size, variant, seed, collect_demo, collect_agent, train_key, eval_key)`;
 //!   `checkpoint_evals(experiment, cell, step, eval_key)`: a cell's evaluations of intermediate checkpoints.
 //! - `episodes(eval_key, idx, task, agent_seed, demo_seed, reached, picked, placed, steps, first_reached,
-//!   first_picked, first_placed, wrong_bin)`: every evaluation episode (`wrong_bin` null before version 3).
+//!   first_picked, first_placed, wrong_bin, closed, close_step, close_x, close_y, close_z)`: every evaluation
+//!   episode (`wrong_bin` null before version 3); `closed` says whether the agent ever commanded its gripper
+//!   closed, and `close_*` the step and the task's object in the gripper's frame (metres) then (all null before
+//!   version 4; the `close_*` null where it never closed).
 //! - `metrics(stage_key, name, value)`: scalar results (e.g. `placed`, `final_val_bc`, `trajectories`).
 //! - `loss_curves(train_key, step, split, bc, inverse, point, total)`.
 //!
@@ -34,7 +37,7 @@ pub const DATABASE: &str = "oneshot.sqlite";
 /// Version of the database layout this binary reads and writes (SQLite's `user_version`). Stores from before it
 /// was recorded read 0 and are migrated on their first writable opening ([`migrate`]); a store newer than the
 /// binary is refused rather than misread.
-pub const SCHEMA_VERSION: i64 = 3;
+pub const SCHEMA_VERSION: i64 = 4;
 
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS stages (
@@ -59,7 +62,8 @@ CREATE TABLE IF NOT EXISTS episodes (
     eval_key TEXT NOT NULL, idx INTEGER NOT NULL, task INTEGER NOT NULL, agent_seed TEXT NOT NULL,
     demo_seed TEXT NOT NULL, reached INTEGER NOT NULL, picked INTEGER NOT NULL, placed INTEGER NOT NULL,
     steps INTEGER NOT NULL, first_reached INTEGER, first_picked INTEGER, first_placed INTEGER,
-    wrong_bin INTEGER, PRIMARY KEY (eval_key, idx));
+    wrong_bin INTEGER, closed INTEGER, close_step INTEGER, close_x REAL, close_y REAL, close_z REAL,
+    PRIMARY KEY (eval_key, idx));
 CREATE TABLE IF NOT EXISTS metrics (
     stage_key TEXT NOT NULL, name TEXT NOT NULL, value REAL NOT NULL, PRIMARY KEY (stage_key, name));
 CREATE TABLE IF NOT EXISTS loss_curves (
@@ -103,6 +107,10 @@ fn migrate(conn: &mut Connection, path: &Path) -> Result<()> {
         add_column(&tx, "attempts", "code_digest TEXT", path)?;
         // Version 2 -> 3: whether an episode left the object in another quadrant (unknown before).
         add_column(&tx, "episodes", "wrong_bin INTEGER", path)?;
+        // Version 3 -> 4: where the gripper first closed (unknown before).
+        for column in ["closed INTEGER", "close_step INTEGER", "close_x REAL", "close_y REAL", "close_z REAL"] {
+            add_column(&tx, "episodes", column, path)?;
+        }
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)?;
     }
     tx.commit()?;
@@ -471,8 +479,9 @@ impl Store {
         for e in &results.episodes {
             tx.execute(
                 "INSERT INTO episodes (eval_key, idx, task, agent_seed, demo_seed, reached, picked, placed, steps,
-                     first_reached, first_picked, first_placed, wrong_bin)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13)",
+                     first_reached, first_picked, first_placed, wrong_bin, closed, close_step, close_x, close_y,
+                     close_z)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18)",
                 params![
                     key,
                     e.index as i64,
@@ -486,7 +495,12 @@ impl Store {
                     e.first_reached.map(|v| v as i64),
                     e.first_picked.map(|v| v as i64),
                     e.first_placed.map(|v| v as i64),
-                    e.wrong_bin
+                    e.wrong_bin,
+                    e.first_close.is_some(),
+                    e.first_close.map(|c| c.step as i64),
+                    e.first_close.map(|c| c.object_in_gripper[0]),
+                    e.first_close.map(|c| c.object_in_gripper[1]),
+                    e.first_close.map(|c| c.object_in_gripper[2])
                 ],
             )?;
         }
@@ -585,6 +599,53 @@ mod tests {
             .unwrap();
         let holder = Holder { host: "node7".into(), pid: 4242, started_at: 100.5 };
         assert_eq!(store.claim(&stage.key, false).unwrap(), Claim::Busy(holder));
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn where_each_episode_first_closed_the_gripper_round_trips_through_the_store() {
+        use crate::eval::grasps::GraspSummary;
+        use crate::eval::{EpisodeResult, GripperClose};
+        let root = std::env::temp_dir().join(format!("oneshot-store-grasps-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
+        let stage = &plan.stages[&plan.order[0]];
+        let mut store = Store::open(&root).unwrap();
+        store.register(&[stage]).unwrap();
+        let Claim::Acquired(attempt) = store.claim(&stage.key, false).unwrap() else { panic!("not claimed") };
+        let episode = |index: usize, picked: bool, close: Option<[f64; 3]>| EpisodeResult {
+            index,
+            task: 0,
+            agent_seed: 1,
+            demo_seed: 2,
+            reached: true,
+            picked,
+            placed: false,
+            wrong_bin: false,
+            steps: 10,
+            first_reached: Some(4),
+            first_picked: None,
+            first_placed: None,
+            first_close: close.map(|object_in_gripper| GripperClose { step: 5, object_in_gripper }),
+        };
+        let episodes = vec![
+            episode(0, true, Some([0.002, -0.001, 0.004])),
+            episode(1, false, Some([-0.025, 0.01, 0.03])),
+            episode(2, false, None),
+        ];
+        let outputs = StageOutputs { metrics: Vec::new(), episodes: episodes.clone(), curve: Vec::new() };
+        store.complete(&stage.key, attempt, &root.join("artifacts/x"), &outputs).unwrap();
+        let keys = [stage.key.clone()];
+        assert_eq!(store.grasps(&keys).unwrap(), Some(GraspSummary::of(&episodes)));
+        let steps: Vec<Option<i64>> = {
+            let mut q = store.conn.prepare("SELECT close_step FROM episodes ORDER BY idx").unwrap();
+            q.query_map([], |r| r.get(0)).unwrap().collect::<rusqlite::Result<_>>().unwrap()
+        };
+        assert_eq!(steps, [Some(5), Some(5), None]);
+        // Episodes stored before the store kept it (version 3) leave it unknown rather than "never closed".
+        store.conn.execute("UPDATE episodes SET closed = NULL WHERE idx = 2", []).unwrap();
+        assert_eq!(store.grasps(&keys).unwrap(), None);
+        assert_eq!(store.grasps(&[]).unwrap(), None, "no episodes, no summary");
         std::fs::remove_dir_all(&root).unwrap();
     }
 

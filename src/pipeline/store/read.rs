@@ -1,5 +1,6 @@
 //! What commands and reports read from the store, as typed records; the SQL stays here.
 use super::Store;
+use crate::eval::grasps::GraspSummary;
 use crate::eval::stats::Counts;
 use anyhow::{Result, bail};
 use rusqlite::types::ValueRef;
@@ -191,6 +192,36 @@ impl Store {
             params![eval_key],
             |r| counts(r, 0),
         )?)
+    }
+
+    /// Where the gripper first closed over the episodes of evaluations `eval_keys`, pooled; none where they have
+    /// no episodes or some were stored before the store kept it (version 4).
+    pub fn grasps(&self, eval_keys: &[String]) -> Result<Option<GraspSummary>> {
+        let mut stmt = self.conn.prepare(
+            "SELECT picked, closed, close_x, close_y, close_z FROM episodes WHERE eval_key = ?1 ORDER BY idx",
+        )?;
+        let mut episodes = Vec::new();
+        for key in eval_keys {
+            let rows = stmt.query_map([key], |r| {
+                let offset = match (r.get::<_, Option<f64>>(2)?, r.get(3)?, r.get(4)?) {
+                    (Some(x), Some(y), Some(z)) => Some([x, y, z]),
+                    _ => None,
+                };
+                Ok((r.get::<_, bool>(0)?, r.get::<_, Option<bool>>(1)?, offset))
+            })?;
+            for row in rows {
+                let (picked, closed, offset) = row?;
+                match closed {
+                    None => return Ok(None),
+                    Some(false) => episodes.push((picked, None)),
+                    Some(true) => match offset {
+                        Some(offset) => episodes.push((picked, Some(offset))),
+                        None => bail!("an episode of evaluation `{key}` closed its gripper but has no offset stored"),
+                    },
+                }
+            }
+        }
+        Ok((!episodes.is_empty()).then(|| GraspSummary::of_closes(episodes)))
     }
 
     /// Finished evaluations of intermediate checkpoints of `experiment`: (cell, step, counts).
