@@ -3,6 +3,7 @@ use super::default_workers;
 use super::options::{OutputFormat, StoreArgs};
 use anyhow::{Context, Result, bail};
 use oneshot_lab::config::{Experiment, Grid, overrides};
+use oneshot_lab::pipeline::child::{StageSource, exit_with_parent, run_stage as run_one_stage};
 use oneshot_lab::pipeline::events::{RunEvent, RunEvents};
 use oneshot_lab::pipeline::graph::{Plan, short};
 use oneshot_lab::pipeline::integrity;
@@ -10,7 +11,7 @@ use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::scheduler::{RunOptions, RunReport, run as run_plan};
 use oneshot_lab::pipeline::selection::{Pattern, display_name};
 use oneshot_lab::pipeline::slurm::queue::shell_quote;
-use oneshot_lab::pipeline::slurm::{SlurmOptions, detached, run_stage as run_one_stage};
+use oneshot_lab::pipeline::slurm::{SlurmOptions, detached};
 use oneshot_lab::pipeline::stages::{self, collection_totals};
 use oneshot_lab::pipeline::store::read::ExperimentRecord;
 use oneshot_lab::pipeline::store::{StageState, Store};
@@ -24,7 +25,7 @@ pub struct RunArgs {
     pub file: PathBuf,
     #[command(flatten)]
     pub store: StoreArgs,
-    /// Stages executed at once.
+    /// Stages executed at once; above 1, each in a process of its own (so it gives the result it gives alone).
     #[arg(long, default_value_t = 1)]
     pub jobs: usize,
     /// Simulation threads per collection or evaluation stage (default: CPU cores).
@@ -74,6 +75,12 @@ pub struct RunStageArgs {
     /// Simulation threads (default: CPU cores).
     #[arg(long)]
     pub workers: Option<usize>,
+    /// Device of a network stage (`cuda:N`, as `run --gpus` hands them out); default: the stage's configuration.
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Stop when process PID, the run that started this stage, has gone.
+    #[arg(long, value_name = "PID")]
+    pub parent: Option<u32>,
 }
 
 /// Arguments of the `plan` command.
@@ -109,9 +116,9 @@ impl RunEvents for PrintEvents {
 /// Runs what is missing, records the experiment's cells and (unless `--only` or a dry run) writes its report.
 pub fn run(a: RunArgs) -> Result<()> {
     let (experiment, plan) = load_plan(&a.file, &a.store.resolution())?;
+    let source = StageSource { file: a.file.clone(), resolution: a.store.resolution() };
     let slurm = a.slurm.then(|| SlurmOptions {
-        file: a.file.clone(),
-        resolution: a.store.resolution(),
+        source: source.clone(),
         args: a.slurm_args.clone(),
         gpu_args: a.slurm_gpu_args.clone(),
         per_kind: experiment.slurm.clone(),
@@ -127,6 +134,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         workers: a.workers.unwrap_or_else(default_workers),
         progress: true,
         detach: a.detach,
+        source: Some(source),
     };
     let root = &a.store.dir.store;
     let report = run_plan(&plan, root, &opts, &PrintEvents)?;
@@ -220,10 +228,13 @@ pub fn cancel(a: CancelArgs) -> Result<()> {
     Ok(())
 }
 
-/// Runs one stage of an experiment, as a Slurm job does.
+/// Runs one stage of an experiment in this process, as a Slurm job or a concurrent local stage does.
 pub fn run_stage(a: RunStageArgs) -> Result<()> {
+    if let Some(parent) = a.parent {
+        exit_with_parent(parent);
+    }
     let (_, plan) = load_plan(&a.file, &a.store.resolution())?;
-    run_one_stage(&plan, &a.key, &a.store.dir.store, a.workers.unwrap_or_else(default_workers))
+    run_one_stage(&plan, &a.key, &a.store.dir.store, a.workers.unwrap_or_else(default_workers), a.device)
 }
 
 fn state_word(s: &StageState) -> &'static str {

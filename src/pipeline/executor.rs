@@ -1,6 +1,7 @@
-//! Executing a stage: the local executor runs it in this process; the Slurm executor ([`super::slurm`]) runs it as a
-//! cluster job. Both publish the stage's artifact folder the same way: built in a staging folder, then renamed into
-//! place, before the store records the stage as done.
+//! Executing a stage: the local executor runs it in this process; the process executor ([`super::child`]) runs it
+//! in a child process (concurrent local stages), the Slurm executor ([`super::slurm`]) as a cluster job, both
+//! through the local executor there. Every stage's artifact folder is published the same way: built in a staging
+//! folder, then renamed into place, before the store records the stage as done.
 use super::graph::{Stage, short};
 use super::stages::{Kind, RunContext, StageOutputs, Upstream};
 use anyhow::{Context, Result};

@@ -1,5 +1,6 @@
 //! The experiment orchestrator: the stage graph and its content keys, the stage kinds, the SQLite results store,
 //! and execution (locally or on Slurm) by the scheduler.
+pub mod child;
 pub mod code;
 pub mod events;
 pub mod executor;

@@ -1,5 +1,6 @@
 //! Executes the missing stages of a plan: in dependency order, up to `jobs` at once, claiming each in the store so
 //! that concurrent runs never execute a stage twice; a failure stops only the stages below it.
+use super::child::{Processes, StageSource};
 use super::events::{RunEvent, RunEvents};
 use super::executor::{Executor, Local};
 use super::graph::{Plan, short};
@@ -7,7 +8,7 @@ use super::selection::{Labels, Pattern, built_by_other_code, display_name, force
 use super::slurm::{Slurm, SlurmOptions, detached};
 use super::stages::{Kind, StageOutputs};
 use super::store::{Claim, Store};
-use anyhow::Result;
+use anyhow::{Context, Result};
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -30,10 +31,13 @@ pub struct RunOptions {
     pub gpus: Vec<String>,
     /// Simulation threads per collection or evaluation stage.
     pub workers: usize,
-    /// Show each stage's own progress bar (only sensible with one job).
+    /// Show the stage's own progress bar when one runs at a time.
     pub progress: bool,
-    /// Submit stages to Slurm instead of running them in this process.
+    /// Submit stages to Slurm instead of running them here.
     pub slurm: Option<SlurmOptions>,
+    /// Where a stage process rebuilds its stage from: with `jobs` above 1 every local stage runs in a process of
+    /// its own ([`Processes`]), which needs it.
+    pub source: Option<StageSource>,
     /// With `slurm`: submit every stage at once, chained by dependencies, and return without waiting.
     pub detach: bool,
 }
@@ -252,11 +256,12 @@ pub fn run(plan: &Plan, root: &Path, opts: &RunOptions, events: &dyn RunEvents) 
     let jobs = opts.jobs.max(1);
     let executor: Arc<dyn Executor> = match &opts.slurm {
         Some(s) => Arc::new(Slurm { options: s.clone(), root: root.to_path_buf(), workers: opts.workers.max(1) }),
-        None => Arc::new(Local {
+        None if jobs > 1 => Arc::new(Processes {
+            source: opts.source.clone().context("concurrent local stages need the experiment they come from")?,
             root: root.to_path_buf(),
             workers: opts.workers.max(1),
-            progress: opts.progress && jobs == 1,
         }),
+        None => Arc::new(Local { root: root.to_path_buf(), workers: opts.workers.max(1), progress: opts.progress }),
     };
     let (tx, rx) = channel();
     let mut s = Scheduler {

@@ -277,6 +277,130 @@ fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Blake3 of every weights file of every finished train stage of the store at `store`, by stage key and file.
+fn trained_weights(store: &Path) -> Vec<(String, String, String)> {
+    let conn = db(store);
+    let stages: Vec<(String, String)> = conn
+        .prepare("SELECT key, artifact FROM stages WHERE kind = 'train' AND status = 'done' ORDER BY key")
+        .unwrap()
+        .query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    let mut out = Vec::new();
+    for (key, artifact) in stages {
+        let digests: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(store.join(artifact).join("digests.json")).unwrap()).unwrap();
+        for f in digests.as_array().expect("a list of files") {
+            let path = f["path"].as_str().unwrap();
+            if path.ends_with(".safetensors") {
+                out.push((key.clone(), path.to_string(), f["blake3"].as_str().unwrap().to_string()));
+            }
+        }
+    }
+    out
+}
+
+/// Every stored episode of the store at `store`, in order.
+fn stored_episodes(store: &Path) -> Vec<(String, i64, i64, i64, i64, Option<f64>)> {
+    db(store)
+        .prepare("SELECT eval_key, idx, reached, picked, steps, close_x FROM episodes ORDER BY eval_key, idx")
+        .unwrap()
+        .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?)))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect()
+}
+
+#[test]
+fn concurrent_stages_give_the_results_they_give_one_at_a_time() {
+    // Stages that shared one process drew dropout masks and sampled actions from one libtorch generator, so two
+    // trainings side by side came out different from the same trainings one after the other, under the same keys.
+    let dir = scratch("pipeline-concurrent");
+    let file = dir.join("tiny.toml");
+    std::fs::write(&file, experiment("[0, 1]", 90, 20)).unwrap();
+    let (alone, beside) = (dir.join("alone"), dir.join("beside"));
+    run(&file, &alone);
+    let out = oneshot()
+        .args(["run", file.to_str().unwrap(), "--store", beside.to_str().unwrap(), "--workers", "1", "--jobs", "2"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(executed(&out), 11, "2 collections, 4 trainings, 4 evaluations and the random policy's");
+    let weights = trained_weights(&alone);
+    assert_eq!(weights.len(), 4 * 3, "four trainings, each with its weights, its checkpoint and its optimiser state");
+    assert_eq!(weights, trained_weights(&beside));
+    let episodes = stored_episodes(&alone);
+    assert_eq!(episodes.len(), 5 * 2);
+    assert_eq!(episodes, stored_episodes(&beside));
+    // A failing stage's process reports its error to the run, which records it.
+    let out = oneshot()
+        .args(["run", file.to_str().unwrap(), "--store", beside.to_str().unwrap(), "--jobs", "2"])
+        .args(["--set", "eval.horizon=4", "--set", "eval.device=\"cuda:7\"", "--only", "n32-full-*"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("cuda"), "{err}");
+    let conn = db(&beside);
+    let error: String = conn
+        .query_row("SELECT error FROM attempts WHERE status = 'failed' ORDER BY id DESC LIMIT 1", [], |r| r.get(0))
+        .unwrap();
+    assert!(error.contains("cuda"), "{error}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_killed_concurrent_run_takes_its_stage_processes_with_it() {
+    let dir = scratch("pipeline-kill-concurrent");
+    let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
+    std::fs::write(&file, experiment("[0, 1]", 90, 400)).unwrap();
+    let args = ["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1", "--jobs", "2"];
+    let mut child = oneshot()
+        .args(args)
+        .args(["--only", "n32-full-*"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let stage_processes = || -> Vec<u32> {
+        std::fs::read_dir("/proc")
+            .unwrap()
+            .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+            .filter(|pid| {
+                let line = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+                let line = String::from_utf8_lossy(&line);
+                line.contains("run-stage") && line.contains(store.to_str().unwrap())
+            })
+            .collect()
+    };
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1800);
+    let checkpoint_written = || {
+        std::fs::read_dir(store.join("artifacts/.staging")).into_iter().flatten().any(|e| {
+            let ck = e.unwrap().path().join("checkpoints");
+            std::fs::read_dir(ck).map(|mut d| d.next().is_some()).unwrap_or(false)
+        })
+    };
+    while !checkpoint_written() {
+        assert!(std::time::Instant::now() < deadline, "training never checkpointed");
+        assert!(child.try_wait().unwrap().is_none(), "run ended before it could be killed");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    assert!(!stage_processes().is_empty(), "the trainings run in processes of their own");
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let gone = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    while !stage_processes().is_empty() {
+        assert!(std::time::Instant::now() < gone, "stage processes outlived their run: {:?}", stage_processes());
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    let out = oneshot().args(args).args(["--only", "n32-full-*"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let conn = db(&store);
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE kind = 'train' AND status = 'done'"), 2);
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'running'"), 0);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// The key and artifact of the store's one finished pretrain stage, checking that it recorded `metric` as a
 /// held-out error in metres.
 fn finished_pretrain(conn: &Connection, metric: &str) -> (String, String) {
@@ -591,5 +715,17 @@ references = ["expert"]
     assert!(table.lines().any(|l| l.starts_with("| full @ 8 |") && l.contains("50.0 ± 9.9")), "{table}");
     let index = std::fs::read_to_string(store.join("reports/objects/index.md")).unwrap();
     assert!(index.contains("## Multi-object environments: held-out objects"));
+    // Every episode recorded whether and where the gripper first closed; the report tabulates it from the store.
+    assert_eq!(count(&conn, "SELECT COUNT(*) FROM episodes WHERE closed IS NULL"), 0);
+    let closed = count(
+        &conn,
+        "SELECT COUNT(*) FROM episodes e JOIN cells c ON c.eval_key = e.eval_key \
+         WHERE c.cell = 'expert' AND e.closed = 1 AND e.close_step > 0",
+    );
+    assert_eq!(closed, 4, "the expert closes its gripper in every episode");
+    let grasps = std::fs::read_to_string(store.join("reports/objects/grasps.md")).unwrap();
+    let expert = grasps.lines().find(|l| l.starts_with("| expert |")).expect("the expert's row");
+    assert!(expert.starts_with("| expert | 1/1 | 100.0 ["), "{grasps}");
+    assert!(index.contains("## Where the gripper first closed") && index.contains(expert), "{index}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

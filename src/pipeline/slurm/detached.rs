@@ -3,8 +3,9 @@
 //! stage as held by its job; a later `run`, `status` or `cancel` catches up ([`catch_up`]): a job that left its
 //! results file completes its stage, a job that ended without one (failed, killed, timed out, or waiting on an
 //! upstream job that failed) fails it, so the next detached run submits it again.
+use super::SlurmOptions;
 use super::queue::{self, QueueEntry};
-use super::{SlurmOptions, results_of};
+use crate::pipeline::child::results_of;
 use crate::pipeline::executor::artifact_dir;
 use crate::pipeline::graph::{Plan, short};
 use crate::pipeline::stages::Kind;
@@ -112,7 +113,7 @@ pub fn catch_up(store: &mut Store, root: &Path) -> Result<CatchUp> {
     let queue = queue::states(&jobs.iter().map(|j| j.job).collect::<Vec<_>>())?;
     for j in jobs {
         let kind = Kind::named(&j.kind).with_context(|| format!("stage {} has unknown kind {}", j.key, j.kind))?;
-        if let Some(outputs) = results_of(root, kind, &j.key, j.job)? {
+        if let Some(outputs) = results_of(root, kind, &j.key, Some(j.job))? {
             store.complete(&j.key, j.attempt, &artifact_dir(root, kind, &j.key), &outputs)?;
             out.completed.push(j.key);
             continue;

@@ -39,28 +39,11 @@ pub fn submit(
     after: &[u64],
     wait: bool,
 ) -> Result<u64> {
-    let exe = std::env::current_exe().context("locating this binary")?;
     let root = absolute(root)?;
     let logs = root.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
     let name = job_name(stage.kind(), &stage.key);
-    let mut inner = vec![
-        exe.to_string_lossy().into_owned(),
-        "run-stage".into(),
-        absolute(&opts.file)?.to_string_lossy().into_owned(),
-        "--key".into(),
-        stage.key.clone(),
-        "--store".into(),
-        root.to_string_lossy().into_owned(),
-        "--workers".into(),
-        workers.to_string(),
-    ];
-    if let Some(p) = &opts.resolution.profile {
-        inner.extend(["--profile".into(), p.clone()]);
-    }
-    for o in &opts.resolution.overrides {
-        inner.extend(["--set".into(), o.to_string()]);
-    }
+    let inner = opts.source.command_line(&stage.key, &root, workers)?;
     // `exec`: the job's shell becomes this binary, so the signals Slurm sends before preemption or the time
     // limit reach the training itself rather than a shell that would die of them first.
     let wrap = format!("exec {}", inner.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" "));

@@ -1,0 +1,147 @@
+//! Stages in processes of their own. This binary's `run-stage` command rebuilds one stage from the experiment file,
+//! runs it against the store's artifacts and leaves its outputs in a results file in the published artifact
+//! folder; the side that started it records them in the store. Slurm jobs run it ([`super::slurm`]), and so do
+//! concurrent local stages ([`Processes`]): libtorch's random generator is one per process, so stages sharing a
+//! process draw from each other's streams, and a stage's result would hang on what ran beside it.
+use super::executor::{Executor, Local, artifact_dir};
+use super::graph::{Plan, Stage, short};
+use super::stages::{Kind, StageOutputs};
+use crate::config::Resolution;
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+/// File in a stage's artifact folder holding what its process measured; its presence marks the process complete.
+pub const RESULTS_FILE: &str = "stage-results.json";
+
+/// What a stage process leaves in its artifact folder: the Slurm job it ran in, if any (so that a later attempt's
+/// job is never mistaken for an earlier one's), and the stage's outputs.
+#[derive(Debug, Serialize, Deserialize)]
+struct JobResults {
+    job: Option<u64>,
+    outputs: StageOutputs,
+}
+
+fn absolute(p: &Path) -> Result<PathBuf> {
+    std::path::absolute(p).with_context(|| format!("resolving {}", p.display()))
+}
+
+/// The experiment a stage process rebuilds its stage from: the file, its profile and its `--set` overrides.
+#[derive(Debug, Clone)]
+pub struct StageSource {
+    pub file: PathBuf,
+    pub resolution: Resolution,
+}
+
+impl StageSource {
+    /// The command line (this binary first) that runs stage `key` against the store at `root` with `workers`
+    /// simulation threads.
+    pub fn command_line(&self, key: &str, root: &Path, workers: usize) -> Result<Vec<String>> {
+        let exe = std::env::current_exe().context("locating this binary")?;
+        let mut line = vec![
+            exe.to_string_lossy().into_owned(),
+            "run-stage".into(),
+            absolute(&self.file)?.to_string_lossy().into_owned(),
+            "--key".into(),
+            key.to_string(),
+            "--store".into(),
+            absolute(root)?.to_string_lossy().into_owned(),
+            "--workers".into(),
+            workers.to_string(),
+        ];
+        if let Some(p) = &self.resolution.profile {
+            line.extend(["--profile".into(), p.clone()]);
+        }
+        for o in &self.resolution.overrides {
+            line.extend(["--set".into(), o.to_string()]);
+        }
+        Ok(line)
+    }
+}
+
+/// Reads the results a stage process left for `stage_key`, if the process that wrote them ran as Slurm job `job`
+/// (none: outside Slurm).
+pub fn results_of(root: &Path, kind: Kind, stage_key: &str, job: Option<u64>) -> Result<Option<StageOutputs>> {
+    let path = artifact_dir(root, kind, stage_key).join(RESULTS_FILE);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let results: JobResults = serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    Ok((results.job == job).then_some(results.outputs))
+}
+
+/// The process side: runs stage `key` of `plan` in this process (its upstream artifacts found by key, its network
+/// on `device` if given) and writes its results file, naming the Slurm job it ran in, into the published artifact
+/// folder.
+pub fn run_stage(plan: &Plan, key: &str, root: &Path, workers: usize, device: Option<String>) -> Result<()> {
+    let stage = plan.stages.get(key).with_context(|| format!("stage {key} is not part of this experiment"))?;
+    let upstream: HashMap<String, PathBuf> =
+        stage.upstream.iter().map(|u| (u.clone(), artifact_dir(root, plan.stages[u].kind(), u))).collect();
+    let local = Local { root: root.to_path_buf(), workers, progress: false };
+    let (artifact, outputs) = local.execute(stage, &upstream, device)?;
+    let job = std::env::var("SLURM_JOB_ID").ok().and_then(|j| j.parse().ok());
+    let results = JobResults { job, outputs };
+    crate::fsio::write_atomic(&artifact.join(RESULTS_FILE), serde_json::to_string(&results)?)
+}
+
+/// Ends this process once process `parent` is no longer its parent (it died and this one was handed to another):
+/// a stage process must not outlive the run that started it, or the next run would reclaim the stage while it
+/// still writes.
+pub fn exit_with_parent(parent: u32) {
+    std::thread::spawn(move || {
+        loop {
+            if std::os::unix::process::parent_id() != parent {
+                eprintln!("the run that started this stage (pid {parent}) has gone: stopping");
+                std::process::exit(1);
+            }
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    });
+}
+
+/// Runs each stage in a child process of this binary's `run-stage` command, so that concurrent stages share no
+/// libtorch state and every stage gives the result it gives alone.
+pub struct Processes {
+    pub source: StageSource,
+    /// The store folder; artifacts live under `artifacts/`.
+    pub root: PathBuf,
+    /// Simulation threads per stage.
+    pub workers: usize,
+}
+
+impl Executor for Processes {
+    fn execute(
+        &self,
+        stage: &Stage,
+        _upstream: &HashMap<String, PathBuf>,
+        device: Option<String>,
+    ) -> Result<(PathBuf, StageOutputs)> {
+        let line = self.source.command_line(&stage.key, &self.root, self.workers)?;
+        let mut cmd = Command::new(&line[0]);
+        cmd.args(&line[1..]).args(["--parent", &std::process::id().to_string()]);
+        if let Some(d) = &device {
+            cmd.args(["--device", d]);
+        }
+        // Inside a Slurm allocation the child would otherwise name the allocation's job in its results.
+        cmd.env_remove("SLURM_JOB_ID").stdin(Stdio::null());
+        let out = cmd.output().context("starting a stage process")?;
+        if !out.status.success() {
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+            bail!("{} ({})", lines[lines.len().saturating_sub(5)..].join(" | "), out.status);
+        }
+        let artifact = artifact_dir(&self.root, stage.kind(), &stage.key);
+        match results_of(&self.root, stage.kind(), &stage.key, None)? {
+            Some(outputs) => Ok((artifact, outputs)),
+            None => bail!(
+                "the process of stage {} ended without writing {}",
+                short(&stage.key),
+                artifact.join(RESULTS_FILE).display()
+            ),
+        }
+    }
+}
