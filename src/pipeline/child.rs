@@ -7,9 +7,11 @@ use super::executor::{Executor, Local, artifact_dir};
 use super::graph::{Plan, Stage, short};
 use super::stages::{Kind, StageOutputs};
 use crate::config::Resolution;
+use crate::train::stop;
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
+use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -18,7 +20,8 @@ use std::time::Duration;
 pub const RESULTS_FILE: &str = "stage-results.json";
 
 /// What a stage process leaves in its artifact folder: the Slurm job it ran in, if any (so that a later attempt's
-/// job is never mistaken for an earlier one's), and the stage's outputs.
+/// job is never mistaken for an earlier one's; a local process's results are read only once it exited
+/// successfully, after it published them), and the stage's outputs.
 #[derive(Debug, Serialize, Deserialize)]
 struct JobResults {
     job: Option<u64>,
@@ -37,12 +40,10 @@ pub struct StageSource {
 }
 
 impl StageSource {
-    /// The command line (this binary first) that runs stage `key` against the store at `root` with `workers`
-    /// simulation threads.
-    pub fn command_line(&self, key: &str, root: &Path, workers: usize) -> Result<Vec<String>> {
-        let exe = std::env::current_exe().context("locating this binary")?;
+    /// The arguments of `run-stage` (after the program) that run stage `key` against the store at `root` with
+    /// `workers` simulation threads.
+    pub fn arguments(&self, key: &str, root: &Path, workers: usize) -> Result<Vec<String>> {
         let mut line = vec![
-            exe.to_string_lossy().into_owned(),
             "run-stage".into(),
             absolute(&self.file)?.to_string_lossy().into_owned(),
             "--key".into(),
@@ -95,8 +96,9 @@ pub fn exit_with_parent(parent: u32) {
     std::thread::spawn(move || {
         loop {
             if std::os::unix::process::parent_id() != parent {
-                eprintln!("the run that started this stage (pid {parent}) has gone: stopping");
-                std::process::exit(1);
+                eprintln!("error: the run that started this stage (pid {parent}) has gone: stopping");
+                // At once, without running exit handlers or destructors while the stage's thread still works.
+                unsafe { libc::_exit(1) };
             }
             std::thread::sleep(Duration::from_millis(500));
         }
@@ -104,13 +106,33 @@ pub fn exit_with_parent(parent: u32) {
 }
 
 /// Runs each stage in a child process of this binary's `run-stage` command, so that concurrent stages share no
-/// libtorch state and every stage gives the result it gives alone.
+/// libtorch state and every stage gives the result it gives alone. A stage's output goes to
+/// `STORE/logs/KIND-KEY-local.log`; SIGTERM or SIGUSR1 to the run is relayed to its stage processes, so that
+/// trainings checkpoint and stop as they do in one process.
 pub struct Processes {
     pub source: StageSource,
     /// The store folder; artifacts live under `artifacts/`.
     pub root: PathBuf,
     /// Simulation threads per stage.
     pub workers: usize,
+}
+
+/// The log of stage `key`'s latest local process.
+pub fn log_path(root: &Path, kind: Kind, key: &str) -> PathBuf {
+    root.join("logs").join(format!("{}-{}-local.log", kind.name(), short(key)))
+}
+
+/// What a failed stage process said: its last `error:` line (or its last line), and how it ended.
+fn failure(log: &Path, status: std::process::ExitStatus) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let lines: Vec<&str> = text.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+    let said = lines.iter().rev().find(|l| l.starts_with("error: ")).or(lines.last()).copied().unwrap_or("");
+    let said: String = said.strip_prefix("error: ").unwrap_or(said).chars().take(600).collect();
+    let ended = match status.signal() {
+        Some(s) => format!("killed by signal {s}"),
+        None => format!("exit status {}", status.code().unwrap_or(-1)),
+    };
+    format!("{said} (stage process {ended}; log: {})", log.display())
 }
 
 impl Executor for Processes {
@@ -120,27 +142,45 @@ impl Executor for Processes {
         _upstream: &HashMap<String, PathBuf>,
         device: Option<String>,
     ) -> Result<(PathBuf, StageOutputs)> {
-        let line = self.source.command_line(&stage.key, &self.root, self.workers)?;
-        let mut cmd = Command::new(&line[0]);
-        cmd.args(&line[1..]).args(["--parent", &std::process::id().to_string()]);
+        let log = log_path(&self.root, stage.kind(), &stage.key);
+        let logs = log.parent().expect("a log lies in the logs folder");
+        std::fs::create_dir_all(logs).with_context(|| format!("creating {}", logs.display()))?;
+        let out = std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
+        // This binary's own file, even if a build has replaced it since the run began: the stage runs the code
+        // the run records for it.
+        let mut cmd = Command::new("/proc/self/exe");
+        cmd.args(self.source.arguments(&stage.key, &self.root, self.workers)?);
+        cmd.args(["--parent", &std::process::id().to_string()]);
         if let Some(d) = &device {
             cmd.args(["--device", d]);
         }
         // Inside a Slurm allocation the child would otherwise name the allocation's job in its results.
-        cmd.env_remove("SLURM_JOB_ID").stdin(Stdio::null());
-        let out = cmd.output().context("starting a stage process")?;
-        if !out.status.success() {
-            let stderr = String::from_utf8_lossy(&out.stderr);
-            let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-            bail!("{} ({})", lines[lines.len().saturating_sub(5)..].join(" | "), out.status);
+        cmd.env_remove("SLURM_JOB_ID").stdin(Stdio::null()).stdout(out.try_clone()?).stderr(out);
+        // While the stage runs, SIGTERM and SIGUSR1 are this run's to relay rather than its end.
+        let _relay = stop::StopGuard::new();
+        let mut child = cmd.spawn().context("starting a stage process")?;
+        let mut relayed = false;
+        let status = loop {
+            if let Some(status) = child.try_wait()? {
+                break status;
+            }
+            if !relayed && stop::requested().is_some() {
+                unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+                relayed = true;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        if !status.success() {
+            bail!("{}", failure(&log, status));
         }
         let artifact = artifact_dir(&self.root, stage.kind(), &stage.key);
         match results_of(&self.root, stage.kind(), &stage.key, None)? {
             Some(outputs) => Ok((artifact, outputs)),
             None => bail!(
-                "the process of stage {} ended without writing {}",
+                "the process of stage {} ended without writing {} (log: {})",
                 short(&stage.key),
-                artifact.join(RESULTS_FILE).display()
+                artifact.join(RESULTS_FILE).display(),
+                log.display()
             ),
         }
     }

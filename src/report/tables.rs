@@ -72,7 +72,8 @@ pub fn multi_object_markdown(rows: &[&ResultRow]) -> String {
 
 /// Markdown table of where the gripper first closed, per row pooled over its seeds: how often it closed, and the
 /// medians of the task's object's offset in the gripper's frame (cm) for the episodes that picked it and those
-/// that did not (`not recorded` where episodes were stored before the store kept it).
+/// that did not (`missing` without finished evaluations, `not recorded` where episodes were stored before the
+/// store kept it).
 pub fn grasps_markdown(rows: &[(&ResultRow, Option<GraspSummary>)]) -> String {
     let mut s = String::from(
         "| model | seeds | closed % [95% CI] | picked: closes, median abs x / abs y / z (cm) | not picked: closes, \
@@ -96,6 +97,7 @@ pub fn grasps_markdown(rows: &[(&ResultRow, Option<GraspSummary>)]) -> String {
                     offsets(&g.not_picked)
                 )
             }
+            None if r.seeds_done == 0 => s += &format!("| {} | {} | missing | | |\n", r.label, seeds(r)),
             None => s += &format!("| {} | {} | not recorded | | |\n", r.label, seeds(r)),
         }
     }

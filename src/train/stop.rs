@@ -1,8 +1,9 @@
 //! Stopping trainings cleanly on SIGTERM or SIGUSR1, the signals a cluster sends before it preempts a job or its
 //! time runs out (Slurm: SIGTERM at the limit, or any signal `--signal` asks for, ahead of it): a training that
 //! receives one writes a checkpoint at its current step and stops with an error naming the signal, so the stage
-//! fails without losing work and the next run resumes from that step. Outside trainings the signals keep their
-//! default effect: the process ends at once.
+//! fails without losing work and the next run resumes from that step. A run waiting on a stage process holds the
+//! same guard and relays the signal to it (`pipeline::child`). Otherwise the signals keep their default effect:
+//! the process ends at once.
 use std::sync::Once;
 use std::sync::atomic::{AtomicI32, AtomicUsize, Ordering};
 
@@ -20,11 +21,11 @@ extern "C" fn on_signal(signal: libc::c_int) {
     RECEIVED.store(signal, Ordering::SeqCst);
 }
 
-/// Held while a training runs: the signals then ask it to checkpoint and stop.
+/// Held while a training runs (or a run waits on a stage process): the signals then ask it to checkpoint and stop.
 pub struct StopGuard(());
 
 impl StopGuard {
-    /// Marks a training as running (installing the handlers on first use).
+    /// Marks a training, or a wait on a stage process, as running (installing the handlers on first use).
     pub fn new() -> StopGuard {
         INSTALL.call_once(|| {
             for signal in [libc::SIGTERM, libc::SIGUSR1] {

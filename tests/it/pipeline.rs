@@ -336,7 +336,7 @@ fn concurrent_stages_give_the_results_they_give_one_at_a_time() {
     // A failing stage's process reports its error to the run, which records it.
     let out = oneshot()
         .args(["run", file.to_str().unwrap(), "--store", beside.to_str().unwrap(), "--jobs", "2"])
-        .args(["--set", "eval.horizon=4", "--set", "eval.device=\"cuda:7\"", "--only", "n32-full-*"])
+        .args(["--set", "eval.horizon=4", "--set", "eval.device=\"cuda:99\"", "--only", "n32-full-*"])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -350,18 +350,20 @@ fn concurrent_stages_give_the_results_they_give_one_at_a_time() {
 }
 
 #[test]
-fn a_killed_concurrent_run_takes_its_stage_processes_with_it() {
+fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     let dir = scratch("pipeline-kill-concurrent");
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, experiment("[0, 1]", 90, 400)).unwrap();
     let args = ["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1", "--jobs", "2"];
-    let mut child = oneshot()
-        .args(args)
-        .args(["--only", "n32-full-*"])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let start = || {
+        oneshot()
+            .args(args)
+            .args(["--only", "n32-full-*"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
     let stage_processes = || -> Vec<u32> {
         std::fs::read_dir("/proc")
             .unwrap()
@@ -373,19 +375,46 @@ fn a_killed_concurrent_run_takes_its_stage_processes_with_it() {
             })
             .collect()
     };
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1800);
-    let checkpoint_written = || {
-        std::fs::read_dir(store.join("artifacts/.staging")).into_iter().flatten().any(|e| {
-            let ck = e.unwrap().path().join("checkpoints");
-            std::fs::read_dir(ck).map(|mut d| d.next().is_some()).unwrap_or(false)
-        })
+    let checkpoints = || -> usize {
+        std::fs::read_dir(store.join("artifacts/.staging"))
+            .into_iter()
+            .flatten()
+            .map(|e| std::fs::read_dir(e.unwrap().path().join("checkpoints")).map(|d| d.count()).unwrap_or(0))
+            .sum()
     };
-    while !checkpoint_written() {
-        assert!(std::time::Instant::now() < deadline, "training never checkpointed");
-        assert!(child.try_wait().unwrap().is_none(), "run ended before it could be killed");
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    }
-    assert!(!stage_processes().is_empty(), "the trainings run in processes of their own");
+    let wait_for_training = |child: &mut std::process::Child, more_than: usize| {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1800);
+        while checkpoints() <= more_than {
+            assert!(std::time::Instant::now() < deadline, "training never checkpointed");
+            assert!(child.try_wait().unwrap().is_none(), "run ended before it could be stopped");
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+    };
+
+    // SIGTERM to the run (what Slurm sends at a time limit): it relays the signal, and both trainings checkpoint
+    // and stop, as they do in one process.
+    let mut child = start();
+    wait_for_training(&mut child, 0);
+    assert_eq!(stage_processes().len(), 2, "the trainings run in processes of their own");
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let stopped = child.wait_with_output().unwrap();
+    assert!(!stopped.status.success());
+    let conn = db(&store);
+    let errors: Vec<String> = conn
+        .prepare("SELECT a.error FROM attempts a JOIN stages s ON s.key = a.stage_key WHERE s.kind = 'train'")
+        .unwrap()
+        .query_map([], |r| r.get(0))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(errors.len(), 2, "{errors:?}");
+    assert!(errors.iter().all(|e| e.contains("stopped by SIGTERM at step")), "{errors:?}");
+    assert!(stage_processes().is_empty());
+
+    // kill -9 of the run: its stage processes notice and end.
+    let before = checkpoints();
+    let mut child = start();
+    wait_for_training(&mut child, before);
     child.kill().unwrap();
     child.wait().unwrap();
     let gone = std::time::Instant::now() + std::time::Duration::from_secs(30);
@@ -393,11 +422,23 @@ fn a_killed_concurrent_run_takes_its_stage_processes_with_it() {
         assert!(std::time::Instant::now() < gone, "stage processes outlived their run: {:?}", stage_processes());
         std::thread::sleep(std::time::Duration::from_millis(100));
     }
+
+    // The next run resumes both trainings from their checkpoints and finishes.
     let out = oneshot().args(args).args(["--only", "n32-full-*"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let conn = db(&store);
     assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE kind = 'train' AND status = 'done'"), 2);
     assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'running'"), 0);
+    for artifact in conn
+        .prepare("SELECT artifact FROM stages WHERE kind = 'train'")
+        .unwrap()
+        .query_map([], |r| r.get::<_, String>(0))
+        .unwrap()
+        .map(Result::unwrap)
+    {
+        let info = std::fs::read_to_string(store.join(&artifact).join("model.json")).unwrap();
+        let summary: serde_json::Value = serde_json::from_str(&info).unwrap();
+        assert!(summary["resumed_from"].as_u64().unwrap() >= 20, "resumed from a checkpoint: {summary}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -43,7 +43,9 @@ pub fn submit(
     let logs = root.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
     let name = job_name(stage.kind(), &stage.key);
-    let inner = opts.source.command_line(&stage.key, &root, workers)?;
+    let exe = std::env::current_exe().context("locating this binary")?;
+    let mut inner = vec![exe.to_string_lossy().into_owned()];
+    inner.extend(opts.source.arguments(&stage.key, &root, workers)?);
     // `exec`: the job's shell becomes this binary, so the signals Slurm sends before preemption or the time
     // limit reach the training itself rather than a shell that would die of them first.
     let wrap = format!("exec {}", inner.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" "));

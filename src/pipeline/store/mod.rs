@@ -637,6 +637,10 @@ mod tests {
         store.complete(&stage.key, attempt, &root.join("artifacts/x"), &outputs).unwrap();
         let keys = [stage.key.clone()];
         assert_eq!(store.grasps(&keys).unwrap(), Some(GraspSummary::of(&episodes)));
+        // A stage being run again keeps its old episodes until it finishes; they are not read meanwhile.
+        store.conn.execute("UPDATE stages SET status = 'running'", []).unwrap();
+        assert_eq!(store.grasps(&keys).unwrap(), None);
+        store.conn.execute("UPDATE stages SET status = 'done'", []).unwrap();
         let steps: Vec<Option<i64>> = {
             let mut q = store.conn.prepare("SELECT close_step FROM episodes ORDER BY idx").unwrap();
             q.query_map([], |r| r.get(0)).unwrap().collect::<rusqlite::Result<_>>().unwrap()

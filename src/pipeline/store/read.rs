@@ -194,11 +194,13 @@ impl Store {
         )?)
     }
 
-    /// Where the gripper first closed over the episodes of evaluations `eval_keys`, pooled; none where they have
-    /// no episodes or some were stored before the store kept it (version 4).
+    /// Where the gripper first closed over the episodes of the finished evaluations among `eval_keys`, pooled;
+    /// none where they have no episodes or some were stored before the store kept it (version 4).
     pub fn grasps(&self, eval_keys: &[String]) -> Result<Option<GraspSummary>> {
         let mut stmt = self.conn.prepare(
-            "SELECT picked, closed, close_x, close_y, close_z FROM episodes WHERE eval_key = ?1 ORDER BY idx",
+            "SELECT e.picked, e.closed, e.close_x, e.close_y, e.close_z
+             FROM episodes e JOIN stages s ON s.key = e.eval_key AND s.status = 'done'
+             WHERE e.eval_key = ?1 ORDER BY e.idx",
         )?;
         let mut episodes = Vec::new();
         for key in eval_keys {
