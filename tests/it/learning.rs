@@ -1,83 +1,118 @@
-//! The chain learns: a handful of collected trajectories, a short training run, and in closed loop the policy
-//! goes to the demonstrated object on its training layouts, which a random policy rarely does.
-use crate::helpers::torch_rng;
+//! The chain learns: a small collection of two tasks, the sixteen-task recipe's trunk pretraining and policy at a
+//! tiny scale, and in closed loop the policy picks up the demonstrated object on its training layouts, which a
+//! random policy never does.
+use crate::helpers::{scratch, torch_rng};
 use oneshot_lab::data::collect::collect;
-use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSharing};
+use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings};
 use oneshot_lab::data::manifest::Manifest;
+use oneshot_lab::data::pairs::{Split, split_of};
 use oneshot_lab::eval::layouts::Layouts;
 use oneshot_lab::eval::run::run_eval;
 use oneshot_lab::eval::{ActionChoice, EpisodeResult, EvalConfig};
 use oneshot_lab::eval::{Actor, Weights};
-use oneshot_lab::model::config::ModelConfig;
-use oneshot_lab::sim::camera::ImageSize;
-use oneshot_lab::sim::camera::Visuals;
+use oneshot_lab::model::config::{ModelConfig, ObjectAttentionInput, ObjectAttentionQuery, PoseHeadInput};
+use oneshot_lab::sim::camera::{ImageSize, Visuals};
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
-use oneshot_lab::train::config::{LrSchedule, MemoryFormat, TrainConfig};
+use oneshot_lab::train::config::{LossWeights, LrSchedule, MemoryFormat, PoseFrames, TrainConfig};
+use oneshot_lab::train::pretrain::{PretrainConfig, localise};
 use oneshot_lab::train::{TrainRun, train};
+use tch::Device;
+
+/// Stages reached, picked and placed over the episodes on training layouts.
+fn stages(episodes: &[EpisodeResult], training: &[bool]) -> [usize; 3] {
+    let on_training = || episodes.iter().filter(|e| training[e.index]);
+    [
+        on_training().filter(|e| e.reached).count(),
+        on_training().filter(|e| e.picked).count(),
+        on_training().filter(|e| e.placed).count(),
+    ]
+}
 
 #[test]
-fn a_briefly_trained_policy_goes_to_the_demonstrated_object_in_closed_loop() {
+fn a_briefly_trained_policy_picks_up_the_demonstrated_object_in_closed_loop() {
     let _rng = torch_rng();
-    let dir = std::env::temp_dir().join(format!("oneshot-test-learning-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = scratch("learning");
+    // learn_cpu16.toml's world at a third of its frame size: collision geometry, experts closing on arrival.
     let world = WorldConfig {
         image: ImageSize { height: 48, width: 64 },
         visuals: Visuals::Collision,
+        close_on_arrival: true,
         ..WorldConfig::default()
     };
-    // Each slot a layout of its own, so that the last slot of each task is the held-out one.
-    let settings = CollectSettings { tasks: vec![1, 14], layouts: LayoutSharing::Unique, ..CollectSettings::default() };
+    // The authors' shared layouts: 16 slots of each task drawn from a pool of 16 environments, the last 4 of which
+    // validate.
+    let settings = CollectSettings { tasks: vec![1, 14], ..CollectSettings::default() };
+    let collection = |robot| CollectConfig {
+        per_task: 16,
+        world: world.clone(),
+        settings: settings.clone(),
+        ..CollectConfig::paper(robot)
+    };
     for robot in Robot::ALL {
-        let config = CollectConfig {
-            per_task: 4,
-            world: world.clone(),
-            settings: settings.clone(),
-            ..CollectConfig::paper(robot)
-        };
-        collect(&config, &dir.join(robot.name()), 2, false).unwrap();
+        collect(&collection(robot), &dir.join(robot.name()), 2, false).unwrap();
     }
+    let (demos, agents) = (dir.join("sawyer"), dir.join("panda"));
+
+    // The recipe's pretraining, shortened: the trunk finds the four objects, then an object attention finds the
+    // one each task names.
     let model = ModelConfig {
         backbone_width: 16,
         backbone_stages: 3,
         attention_inner: 32,
         embed_hidden: 64,
+        dropout: 0.0,
+        object_attention: true,
+        object_attention_input: ObjectAttentionInput::FrozenTrunk,
+        object_attention_query: ObjectAttentionQuery::TaskHead,
+        task_head: true,
+        pose_head: true,
+        pose_head_input: PoseHeadInput::Object,
         ..ModelConfig::default()
     };
+    let pretrain = PretrainConfig { steps: 1000, object_attention_steps: 1000, ..PretrainConfig::default() };
+    let (trunk, attention) = (dir.join("trunk.safetensors"), dir.join("object_attention.safetensors"));
+    let trunk_config = pretrain.localise((model.backbone_width, model.backbone_stages), None, 0, Some(trunk.clone()));
+    localise(&agents, &trunk_config, Device::Cpu).unwrap();
+    let shape = (model.attention_heads, model.attention_inner);
+    let attention_config = pretrain.attention_phase(&trunk_config, shape, trunk.clone(), attention.clone()).unwrap();
+    localise(&agents, &attention_config, Device::Cpu).unwrap();
+
+    let model = ModelConfig {
+        pretrained_backbone: Some(trunk.to_string_lossy().into_owned()),
+        pretrained_object_attention: Some(attention.to_string_lossy().into_owned()),
+        ..model
+    };
     let config = TrainConfig {
-        steps: 600,
+        steps: 1500,
         batch_size: 8,
         lr: 3e-3,
         lr_schedule: LrSchedule::Cosine,
-        lr_warmup: 50,
+        lr_warmup: 100,
         device: "cpu".into(),
-        val_interval: 600,
+        val_interval: 1500,
         val_batches: 1,
-        checkpoint_interval: 600,
+        checkpoint_interval: 1500,
         val_fraction: 0.25,
         augment: false,
+        loss: LossWeights { pose: 100.0, ..LossWeights::default() },
+        pose_frames: PoseFrames::First,
+        window_start: 0.5,
+        action_resolution: 0,
         prefetch: 0,
         memory_format: MemoryFormat::ChannelsLast,
-        // Exact actions, as this run was calibrated with. Its outcome hangs on the targets' last bits: quantised to
-        // 1/1024 (0.02 mm) it reached 2/6, to the authors' 1/128 0/6 (2026-12-03): a 600-step run on 12
-        // trajectories is that fragile (docs/research/sixteen-tasks.md).
-        action_resolution: 0,
         ..TrainConfig::default()
     };
-    let (demos, agents) = (dir.join("sawyer"), dir.join("panda"));
     let out = dir.join("model");
-    train(
-        &model,
-        &config,
-        &TrainRun { demo_dir: &demos, agent_dir: &agents, per_task: None, out: &out, progress: false },
-    )
-    .unwrap();
+    let run = TrainRun { demo_dir: &demos, agent_dir: &agents, per_task: None, out: &out, progress: false };
+    train(&model, &config, &run).unwrap();
 
+    // Episode i runs agent trajectory i's layout with the same slot's demonstration.
     let layouts = Layouts::Training { demos: demos.clone(), agents: agents.clone() };
     let eval = EvalConfig {
-        episodes: 8,
+        episodes: 32,
         horizon: 40,
-        batch: 8,
+        batch: 16,
         device: "cpu".into(),
         action: ActionChoice::Mode,
         ..EvalConfig::default()
@@ -85,22 +120,25 @@ fn a_briefly_trained_policy_goes_to_the_demonstrated_object_in_closed_loop() {
     let policy = Actor::Network(Weights { at: out.clone(), step: None });
     let (learned, _) = run_eval(&policy, None, &eval, &layouts, 2, None).unwrap();
     let (random, _) = run_eval(&Actor::Random, Some(&world), &eval, &layouts, 2, None).unwrap();
-    // Episode i runs agent trajectory i's layout; the last slot of each task was held out for validation.
-    let slots: Vec<usize> = Manifest::load(&agents).unwrap().trajectories.iter().map(|e| e.index).collect();
-    let trained = |e: &&EpisodeResult| slots[e.index] < 3;
-    let count = |episodes: &[EpisodeResult], stage: fn(&EpisodeResult) -> bool| {
-        episodes.iter().filter(trained).filter(|e| stage(e)).count()
-    };
-    let (reached, picked) = (count(&learned, |e| e.reached), count(&learned, |e| e.picked));
-    let (random_reached, random_picked) = (count(&random, |e| e.reached), count(&random, |e| e.picked));
+    let manifest = Manifest::load(&agents).unwrap();
+    let training: Vec<bool> = manifest
+        .trajectories
+        .iter()
+        .map(|e| split_of(e, &manifest.config, config.val_fraction) == Split::Train)
+        .collect();
+    let n = training.iter().filter(|&&t| t).count();
+    let [reached, picked, placed] = stages(&learned, &training);
+    let [random_reached, random_picked, _] = stages(&random, &training);
     eprintln!(
-        "trained policy on its 6 training layouts: reached {reached}, picked {picked}, placed {}; random: reached \
-         {random_reached}, picked {random_picked}",
-        count(&learned, |e| e.placed)
+        "trained policy on its {n} training layouts: reached {reached}, picked {picked}, placed {placed}; random: \
+         reached {random_reached}, picked {random_picked}"
     );
-    // What 600 steps on 12 trajectories achieve: the policy goes to the demonstrated object on the layouts it was
-    // trained on, which a random policy rarely does; grasping it is not learned at this scale (see docs/research/).
-    assert!(reached >= 5, "the trained policy reached {reached}/6");
-    assert!(random_reached <= 2 && random_picked == 0, "random reached {random_reached}/6, picked {random_picked}/6");
+    // Measured over six training seeds and both layout schemes (docs/research/sixteen-tasks.md): 5 to 12 picked and
+    // 3 to 10 placed of about 25, a random policy none; the bounds leave room for another machine's arithmetic.
+    assert!(n >= 20, "{n} training layouts: the pool's last 4 environments validate");
+    assert!(reached * 4 >= n * 3, "the trained policy reached {reached}/{n}");
+    assert!(picked >= 3, "the trained policy picked {picked}/{n}");
+    assert!(placed >= 1, "the trained policy placed {placed}/{n}");
+    assert_eq!(random_picked, 0, "random picked {random_picked}/{n}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
