@@ -1,8 +1,9 @@
 //! The orchestrator against real (tiny) stages: caching, selective re-runs, interruption, concurrency, reports.
-use crate::helpers::{oneshot, scratch};
+use crate::helpers::{HANG_GUARD, oneshot, scratch, staged_checkpoints, wait_for};
 use rusqlite::Connection;
 use std::path::{Path, PathBuf};
 use std::process::Output;
+use std::time::Duration;
 
 /// A tiny experiment: task 0 only, 32x40 frames, a narrow network, a few steps, two short episodes.
 fn experiment(seeds: &str, jpeg_quality: u8, steps: u32) -> String {
@@ -215,21 +216,11 @@ fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
         .stderr(std::process::Stdio::null())
         .spawn()
         .unwrap();
-    // Wait until training has written a checkpoint, then kill -9. The deadline only guards against a run that
-    // hangs: on 2 cores shared with other work (or with a hypervisor taking most of them) the collection and the
-    // first checkpoint took longer than 4 minutes.
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1800);
-    let checkpoint_written = || {
-        std::fs::read_dir(store.join("artifacts/.staging")).into_iter().flatten().any(|e| {
-            let ck = e.unwrap().path().join("checkpoints");
-            std::fs::read_dir(ck).map(|mut d| d.next().is_some()).unwrap_or(false)
-        })
-    };
-    while !checkpoint_written() {
-        assert!(std::time::Instant::now() < deadline, "training never checkpointed");
+    // Wait until training has written a checkpoint, then kill -9.
+    wait_for(HANG_GUARD, Duration::from_millis(100), || {
         assert!(child.try_wait().unwrap().is_none(), "run ended before it could be killed");
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    }
+        (staged_checkpoints(&store) > 0).then_some(()).ok_or_else(|| "training never checkpointed".to_string())
+    });
     child.kill().unwrap();
     child.wait().unwrap();
     let conn = db(&store);
@@ -375,20 +366,12 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
             })
             .collect()
     };
-    let checkpoints = || -> usize {
-        std::fs::read_dir(store.join("artifacts/.staging"))
-            .into_iter()
-            .flatten()
-            .map(|e| std::fs::read_dir(e.unwrap().path().join("checkpoints")).map(|d| d.count()).unwrap_or(0))
-            .sum()
-    };
     let wait_for_training = |child: &mut std::process::Child, more_than: usize| {
-        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1800);
-        while checkpoints() <= more_than {
-            assert!(std::time::Instant::now() < deadline, "training never checkpointed");
+        wait_for(HANG_GUARD, Duration::from_millis(100), || {
             assert!(child.try_wait().unwrap().is_none(), "run ended before it could be stopped");
-            std::thread::sleep(std::time::Duration::from_millis(100));
-        }
+            let written = staged_checkpoints(&store);
+            (written > more_than).then_some(()).ok_or_else(|| format!("{written} checkpoints, waiting for more"))
+        })
     };
 
     // SIGTERM to the run (what Slurm sends at a time limit): it relays the signal, and both trainings checkpoint
@@ -412,16 +395,15 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     assert!(stage_processes().is_empty());
 
     // kill -9 of the run: its stage processes notice and end.
-    let before = checkpoints();
+    let before = staged_checkpoints(&store);
     let mut child = start();
     wait_for_training(&mut child, before);
     child.kill().unwrap();
     child.wait().unwrap();
-    let gone = std::time::Instant::now() + std::time::Duration::from_secs(30);
-    while !stage_processes().is_empty() {
-        assert!(std::time::Instant::now() < gone, "stage processes outlived their run: {:?}", stage_processes());
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    }
+    wait_for(Duration::from_secs(30), Duration::from_millis(100), || {
+        let left = stage_processes();
+        left.is_empty().then_some(()).ok_or_else(|| format!("stage processes outlived their run: {left:?}"))
+    });
 
     // The next run resumes both trainings from their checkpoints and finishes.
     let out = oneshot().args(args).args(["--only", "n32-full-*"]).output().unwrap();

@@ -1,9 +1,10 @@
 //! The Slurm executor against a real (one-node) Slurm: `scripts/slurm-one-node.sh` starts one; CI sets
 //! ONESHOT_REQUIRE_SLURM=1 so that a missing Slurm fails the test instead of skipping it.
+use crate::helpers::{HANG_GUARD, staged_checkpoints, wait_for};
 use rusqlite::Connection;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const EXPERIMENT: &str = r#"name = "tiny_slurm"
 [world.image]
@@ -121,34 +122,20 @@ fn caught_up(store: &Path) -> (String, i64, i64) {
     (stdout(&status), count("done"), count("failed"))
 }
 
-/// How long a wait may last before the test calls the run hung: a guard, not a speed requirement (on 2 cores
-/// shared with other work, or with a hypervisor taking most of them, stages take many times their usual time).
-const HANG_GUARD: Duration = Duration::from_secs(1800);
-
 /// Calls `status` until `done` stages are done.
 fn wait_until_done(store: &Path, done: i64) -> String {
-    let start = Instant::now();
-    loop {
+    wait_for(HANG_GUARD, Duration::from_secs(2), || {
         let (text, n, _) = caught_up(store);
-        if n == done {
-            return text;
-        }
-        assert!(start.elapsed() < HANG_GUARD, "{n} of {done} stages done after {HANG_GUARD:?}: {text}");
-        std::thread::sleep(Duration::from_secs(2));
-    }
+        if n == done { Ok(text) } else { Err(format!("{n} of {done} stages done: {text}")) }
+    })
 }
 
 /// Calls `status` until `failed` stages have failed; returns its text.
 fn wait_until_failed(store: &Path, failed: i64) -> String {
-    let start = Instant::now();
-    loop {
+    wait_for(HANG_GUARD, Duration::from_secs(2), || {
         let (text, _, n) = caught_up(store);
-        if n == failed {
-            return text;
-        }
-        assert!(start.elapsed() < HANG_GUARD, "{n} stages failed after {HANG_GUARD:?}: {text}");
-        std::thread::sleep(Duration::from_secs(2));
-    }
+        if n == failed { Ok(text) } else { Err(format!("{n} of {failed} stages failed: {text}")) }
+    })
 }
 
 /// The Slurm job holding the running stage of `kind`.
@@ -166,17 +153,9 @@ fn job_of(store: &Path, kind: &str) -> String {
 
 /// Waits until a training job has written a checkpoint into its staging folder.
 fn wait_for_checkpoint(store: &Path) {
-    let start = Instant::now();
-    let written = || {
-        std::fs::read_dir(store.join("artifacts/.staging")).into_iter().flatten().any(|e| {
-            let checkpoints = e.unwrap().path().join("checkpoints");
-            std::fs::read_dir(checkpoints).is_ok_and(|mut d| d.next().is_some())
-        })
-    };
-    while !written() {
-        assert!(start.elapsed() < HANG_GUARD, "the training job never checkpointed");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    wait_for(HANG_GUARD, Duration::from_millis(100), || {
+        (staged_checkpoints(store) > 0).then_some(()).ok_or_else(|| "the training job never checkpointed".to_string())
+    });
 }
 
 /// The latest checkpoint step of the training in the store's staging folder (0: none).
@@ -240,11 +219,10 @@ fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_ru
     // The cluster's warning before preemption or the time limit (here sent by hand, once the resubmitted training
     // has written a checkpoint of its own, so it is under way): the training writes a checkpoint at the step it is
     // at and its job ends; the next submission resumes from that step.
-    let start = Instant::now();
-    while latest_checkpoint(&store) <= before {
-        assert!(start.elapsed() < HANG_GUARD, "the resubmitted training never checkpointed");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for(HANG_GUARD, Duration::from_millis(50), || {
+        let latest = latest_checkpoint(&store);
+        (latest > before).then_some(()).ok_or_else(|| format!("the resubmitted training is at checkpoint {latest}"))
+    });
     let job = job_of(&store, "train");
     let warned = Command::new("scancel").args(["--full", "--signal=USR1", &job]).status().unwrap();
     assert!(warned.success());

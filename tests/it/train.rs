@@ -1,6 +1,6 @@
 //! Training on a small real collection: validation loss falls for every architecture; the model's sizes are
 //! checked against the data.
-use crate::helpers::torch_rng;
+use crate::helpers::{HANG_GUARD, torch_rng, wait_for};
 use oneshot_lab::data::collect::collect;
 use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSharing};
 use oneshot_lab::data::pairs::{FrameForm, PairDataset, Split, Windows};
@@ -189,10 +189,9 @@ fn a_training_told_to_stop_by_signal_checkpoints_and_the_next_run_resumes_there(
     };
     // A long training, told to stop once it is under way (its first curve point is written at step 0).
     let child = train("1000000").stderr(std::process::Stdio::piped()).spawn().unwrap();
-    let started = std::time::Instant::now();
-    while !out.join("curve.jsonl").exists() && started.elapsed().as_secs() < 120 {
-        std::thread::sleep(std::time::Duration::from_millis(200));
-    }
+    wait_for(HANG_GUARD, std::time::Duration::from_millis(200), || {
+        out.join("curve.jsonl").exists().then_some(()).ok_or_else(|| "the training wrote no curve".to_string())
+    });
     std::thread::sleep(std::time::Duration::from_secs(2));
     unsafe { libc::kill(child.id() as i32, libc::SIGUSR1) };
     let stopped = child.wait_with_output().unwrap();
