@@ -1,8 +1,7 @@
 //! DAML's meta-learning: the inner step on the learned loss, and the second-order outer gradient.
-use crate::helpers::seeded;
+use crate::helpers::{random_batch, seeded};
 use oneshot_lab::model::architectures::daml::Daml;
 use oneshot_lab::model::architectures::daml_trunk::TrunkKind;
-use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::mixture::MixtureSpec;
 use oneshot_lab::model::policy::PolicyNet;
@@ -20,19 +19,6 @@ fn tiny() -> ModelConfig {
 
 /// Both trunks, each with the prefix of one of its adapted weights' names.
 const TRUNKS: [(TrunkKind, &str); 2] = [(TrunkKind::Conv, "conv3."), (TrunkKind::ResNet, "backbone.layer2.0.bn1.")];
-
-fn batch() -> DeviceBatch {
-    let opts = (Kind::Float, Device::Cpu);
-    DeviceBatch {
-        context: Tensor::randn([2, 4, 3, 32, 40], opts),
-        agent: Tensor::randn([2, 7, 3, 32, 40], opts),
-        actions: Tensor::rand([2, 6, 8], opts) * 2.0 - 1.0,
-        points: Tensor::rand([2, 2], opts) * 2.0 - 1.0,
-        poses: Tensor::rand([2, 6], opts),
-        pose_weights: Tensor::ones([2, 7], opts),
-        tasks: Tensor::from_slice(&[3i64, 12]),
-    }
-}
 
 /// The largest gradient entry of the variables whose names start with `prefix` (0 where none has a gradient).
 fn largest_grad(vs: &nn::VarStore, prefix: &str) -> f64 {
@@ -86,7 +72,7 @@ fn tasks_are_independent(trunk: TrunkKind) {
     let _rng = seeded(3);
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &tiny(), trunk);
-    let b = batch();
+    let b = random_batch();
     let together = daml.forward_t(&b.context, &b.agent, false).actions;
     let alone = daml.forward_t(&b.context.narrow(0, 0, 1), &b.agent.narrow(0, 0, 1), false).actions;
     let gap = (together.means.narrow(0, 0, 1) - &alone.means).abs().max().double_value(&[]);
@@ -111,7 +97,7 @@ fn outer_gradient_is_second_order(trunk: TrunkKind, adapted: &str) {
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &config, trunk);
     let spec = MixtureSpec::for_model(&config);
-    let b = batch();
+    let b = random_batch();
 
     // Training (second order): behaviour cloning and pose regression reach the initial weights and the learned loss.
     let l = daml.losses(&b, spec, true);
@@ -141,7 +127,7 @@ fn poses_from_first_frame(trunk: TrunkKind) {
     let _rng = seeded(2);
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &tiny(), trunk);
-    let b = batch();
+    let b = random_batch();
     let poses = daml.predict_poses(&b.context, &b.agent).expect("DAML has a pose head");
     assert_eq!(poses.size(), [2, 6]);
     let later = b.agent.copy();
@@ -161,7 +147,7 @@ fn the_resnet_trunk_updates_its_batch_norm_statistics_in_training_only() {
     let daml = Daml::new(&vs.root(), &config, TrunkKind::ResNet);
     let statistic = || vs.variables()["backbone.layer1.0.bn1.running_mean"].copy();
     let before = statistic();
-    let b = batch();
+    let b = random_batch();
     let _ = daml.forward_t(&b.context, &b.agent, false);
     assert!(before.equal(&statistic()), "evaluation leaves the running statistics alone");
     let _ = daml.losses(&b, MixtureSpec::for_model(&config), true);

@@ -1,9 +1,11 @@
 //! What the test modules share: the binary under test, scratch folders, the lock on libtorch's global random
-//! generator, and waiting on what a run in another process does.
+//! generator, a random training batch, and waiting on what a run in another process does.
+use oneshot_lab::model::batch::DeviceBatch;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
+use tch::{Device, Kind, Tensor};
 
 /// The `oneshot-lab` binary built for these tests.
 pub fn oneshot() -> Command {
@@ -52,11 +54,29 @@ pub fn wait_for<T>(limit: Duration, every: Duration, mut poll: impl FnMut() -> R
     }
 }
 
-/// Checkpoint files the trainings under way in a store have written to their staging folders.
-pub fn staged_checkpoints(store: &Path) -> usize {
+/// The latest complete checkpoint's step among the trainings under way in a store's staging folders (0: none
+/// yet; a checkpoint whose weights file is still being written does not count).
+pub fn latest_staged_checkpoint(store: &Path) -> u64 {
     std::fs::read_dir(store.join("artifacts/.staging"))
         .into_iter()
         .flatten()
-        .map(|e| std::fs::read_dir(e.unwrap().path().join("checkpoints")).map_or(0, |d| d.count()))
-        .sum()
+        .filter_map(|e| oneshot_lab::train::checkpoint::latest(&e.unwrap().path().join("checkpoints")).ok().flatten())
+        .map(|(step, _)| step)
+        .max()
+        .unwrap_or(0)
+}
+
+/// A random training batch of two samples at 32x40 on the CPU (four context frames, seven agent frames, tasks 3
+/// and 12), drawn from libtorch's generator.
+pub fn random_batch() -> DeviceBatch {
+    let opts = (Kind::Float, Device::Cpu);
+    DeviceBatch {
+        context: Tensor::randn([2, 4, 3, 32, 40], opts),
+        agent: Tensor::randn([2, 7, 3, 32, 40], opts),
+        actions: Tensor::rand([2, 6, 8], opts) * 2.0 - 1.0,
+        points: Tensor::rand([2, 2], opts) * 2.0 - 1.0,
+        poses: Tensor::rand([2, 6], opts),
+        pose_weights: Tensor::ones([2, 7], opts),
+        tasks: Tensor::from_slice(&[3i64, 12]),
+    }
 }

@@ -1,5 +1,5 @@
 //! The orchestrator against real (tiny) stages: caching, selective re-runs, interruption, concurrency, reports.
-use crate::helpers::{HANG_GUARD, oneshot, scratch, staged_checkpoints, wait_for};
+use crate::helpers::{HANG_GUARD, latest_staged_checkpoint, oneshot, scratch, wait_for};
 use rusqlite::Connection;
 use std::path::{Path, PathBuf};
 use std::process::Output;
@@ -201,44 +201,21 @@ fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
     let dir = scratch("pipeline-kill");
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, experiment("[0]", 90, 400)).unwrap();
-    let mut child = oneshot()
-        .args([
-            "run",
-            file.to_str().unwrap(),
-            "--store",
-            store.to_str().unwrap(),
-            "--workers",
-            "1",
-            "--only",
-            "n32-full-s0",
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let args =
+        ["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1", "--only", "n32-full-s0"];
+    let mut child =
+        oneshot().args(args).stdout(std::process::Stdio::null()).stderr(std::process::Stdio::null()).spawn().unwrap();
     // Wait until training has written a checkpoint, then kill -9.
     wait_for(HANG_GUARD, Duration::from_millis(100), || {
         assert!(child.try_wait().unwrap().is_none(), "run ended before it could be killed");
-        (staged_checkpoints(&store) > 0).then_some(()).ok_or_else(|| "training never checkpointed".to_string())
+        (latest_staged_checkpoint(&store) > 0).then_some(()).ok_or_else(|| "training never checkpointed".to_string())
     });
     child.kill().unwrap();
     child.wait().unwrap();
     let conn = db(&store);
     assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE kind = 'train' AND status = 'done'"), 0);
 
-    let out = oneshot()
-        .args([
-            "run",
-            file.to_str().unwrap(),
-            "--store",
-            store.to_str().unwrap(),
-            "--workers",
-            "1",
-            "--only",
-            "n32-full-s0",
-        ])
-        .output()
-        .unwrap();
+    let out = oneshot().args(args).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let conn = db(&store);
     let train_key: String =
@@ -257,13 +234,16 @@ fn a_killed_run_leaves_nothing_falsely_complete_and_the_next_run_resumes() {
         .collect();
     assert_eq!(attempts.len(), 2, "{attempts:?}");
     assert_eq!(attempts[0].0, "failed");
-    assert!(attempts[0].1.as_deref().unwrap().contains("interrupted"));
+    assert!(attempts[0].1.as_deref().is_some_and(|e| e.contains("interrupted")), "{attempts:?}");
     assert_eq!(attempts[1].0, "done");
     let artifact: String =
         conn.query_row("SELECT artifact FROM stages WHERE key = ?1", [&train_key], |r| r.get(0)).unwrap();
     let info = std::fs::read_to_string(store.join(&artifact).join("model.json")).unwrap();
     let summary: serde_json::Value = serde_json::from_str(&info).unwrap();
-    assert!(summary["resumed_from"].as_u64().unwrap() >= 20, "training resumed from its checkpoint: {summary}");
+    assert!(
+        summary["resumed_from"].as_u64().is_some_and(|s| s >= 20),
+        "training resumed from its checkpoint: {summary}"
+    );
     assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'running'"), 0);
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -366,11 +346,11 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
             })
             .collect()
     };
-    let wait_for_training = |child: &mut std::process::Child, more_than: usize| {
+    let wait_for_training = |child: &mut std::process::Child, after: u64| {
         wait_for(HANG_GUARD, Duration::from_millis(100), || {
             assert!(child.try_wait().unwrap().is_none(), "run ended before it could be stopped");
-            let written = staged_checkpoints(&store);
-            (written > more_than).then_some(()).ok_or_else(|| format!("{written} checkpoints, waiting for more"))
+            let latest = latest_staged_checkpoint(&store);
+            (latest > after).then_some(()).ok_or_else(|| format!("the latest checkpoint is at step {latest}"))
         })
     };
 
@@ -395,7 +375,7 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     assert!(stage_processes().is_empty());
 
     // kill -9 of the run: its stage processes notice and end.
-    let before = staged_checkpoints(&store);
+    let before = latest_staged_checkpoint(&store);
     let mut child = start();
     wait_for_training(&mut child, before);
     child.kill().unwrap();

@@ -1,6 +1,6 @@
 //! bf16 autocast (`train.precision = "bf16"`): on inside its scope only, and a training step's losses and gradients
 //! stay close to the fp32 step's for every architecture.
-use crate::helpers::torch_rng;
+use crate::helpers::{random_batch, torch_rng};
 use oneshot_lab::autocast::{Autocast, full_precision};
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::batch::DeviceBatch;
@@ -47,7 +47,6 @@ fn step(vs: &nn::VarStore, policy: &Policy, batch: &DeviceBatch, precision: Prec
 #[test]
 fn a_bf16_step_stays_close_to_the_fp32_step_for_every_architecture() {
     let _rng = torch_rng();
-    let opts = (Kind::Float, Device::Cpu);
     for registration in ARCHITECTURES.iter().filter(|r| r.bf16) {
         tch::manual_seed(7);
         let config = ModelConfig {
@@ -60,15 +59,7 @@ fn a_bf16_step_stays_close_to_the_fp32_step_for_every_architecture() {
         };
         let vs = nn::VarStore::new(Device::Cpu);
         let policy = Policy::new(&vs.root(), &config);
-        let batch = DeviceBatch {
-            context: Tensor::randn([2, 4, 3, 32, 40], opts),
-            agent: Tensor::randn([2, 7, 3, 32, 40], opts),
-            actions: Tensor::rand([2, 6, 8], opts) * 2.0 - 1.0,
-            points: Tensor::rand([2, 2], opts) * 2.0 - 1.0,
-            poses: Tensor::rand([2, 6], opts),
-            pose_weights: Tensor::ones([2, 7], opts),
-            tasks: Tensor::from_slice(&[3i64, 12]),
-        };
+        let batch = random_batch();
         let (loss32, grad32) = step(&vs, &policy, &batch, Precision::Fp32);
         let (loss16, grad16) = step(&vs, &policy, &batch, Precision::Bf16);
         let name = registration.name;

@@ -1,6 +1,6 @@
 //! The Slurm executor against a real (one-node) Slurm: `scripts/slurm-one-node.sh` starts one; CI sets
 //! ONESHOT_REQUIRE_SLURM=1 so that a missing Slurm fails the test instead of skipping it.
-use crate::helpers::{HANG_GUARD, staged_checkpoints, wait_for};
+use crate::helpers::{HANG_GUARD, latest_staged_checkpoint, wait_for};
 use rusqlite::Connection;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -154,19 +154,10 @@ fn job_of(store: &Path, kind: &str) -> String {
 /// Waits until a training job has written a checkpoint into its staging folder.
 fn wait_for_checkpoint(store: &Path) {
     wait_for(HANG_GUARD, Duration::from_millis(100), || {
-        (staged_checkpoints(store) > 0).then_some(()).ok_or_else(|| "the training job never checkpointed".to_string())
+        (latest_staged_checkpoint(store) > 0)
+            .then_some(())
+            .ok_or_else(|| "the training job never checkpointed".to_string())
     });
-}
-
-/// The latest checkpoint step of the training in the store's staging folder (0: none).
-fn latest_checkpoint(store: &Path) -> u64 {
-    std::fs::read_dir(store.join("artifacts/.staging"))
-        .into_iter()
-        .flatten()
-        .filter_map(|e| oneshot_lab::train::checkpoint::latest(&e.unwrap().path().join("checkpoints")).ok().flatten())
-        .map(|(step, _)| step)
-        .max()
-        .unwrap_or(0)
 }
 
 /// Every evaluation episode and collection metric of a store, keyed by stage, for comparing two stores.
@@ -212,7 +203,7 @@ fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_ru
     assert!(text.contains("a job it depended on failed"), "{text}");
 
     // The next detached run resubmits exactly those two (training resumes from its checkpoint).
-    let before = latest_checkpoint(&store);
+    let before = latest_staged_checkpoint(&store);
     let text = detach(&[]);
     assert!(text.contains("2 Slurm jobs submitted"), "{text}");
 
@@ -220,7 +211,7 @@ fn detached_runs_chain_jobs_survive_a_killed_job_and_cancel_and_equal_a_local_ru
     // has written a checkpoint of its own, so it is under way): the training writes a checkpoint at the step it is
     // at and its job ends; the next submission resumes from that step.
     wait_for(HANG_GUARD, Duration::from_millis(50), || {
-        let latest = latest_checkpoint(&store);
+        let latest = latest_staged_checkpoint(&store);
         (latest > before).then_some(()).ok_or_else(|| format!("the resubmitted training is at checkpoint {latest}"))
     });
     let job = job_of(&store, "train");
