@@ -1,13 +1,14 @@
 //! `why`, `status`, `query`, `gc` and `report`: looking into (and tidying) the results store.
 use super::options::{OutputFormat, ReadStoreDir, StoreArgs};
 use anyhow::{Result, bail};
-use oneshot_lab::config::Experiment;
+use oneshot_lab::config::{Experiment, overrides};
 use oneshot_lab::pipeline::code;
 use oneshot_lab::pipeline::executor::staging_dir;
 use oneshot_lab::pipeline::gc::{folder_size, remove_artifacts, unused_artifacts};
 use oneshot_lab::pipeline::graph::short;
 use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::slurm::detached;
+use oneshot_lab::pipeline::slurm::queue::shell_quote;
 use oneshot_lab::pipeline::stages::Kind;
 use oneshot_lab::pipeline::store::jobs::SLURM_HOST;
 use oneshot_lab::pipeline::store::read::StageRecord;
@@ -422,6 +423,51 @@ pub fn gc(a: GcArgs) -> Result<()> {
     Ok(())
 }
 
+/// A report shows an experiment as its last `run` recorded it (cells, profile, overrides). A report asked for with
+/// another profile or other overrides is refused, naming both; one asked for plainly, of a run made with some,
+/// says so on stderr, since its cells may not be the file's as written.
+fn check_as_last_run(store: &Store, experiment: &Experiment, a: &ReportArgs) -> Result<()> {
+    let recorded = store.experiment(&experiment.name)?;
+    let describe = |profile: &Option<String>, overrides: &str| {
+        let parts: Vec<String> = profile
+            .iter()
+            .map(|p| format!("--profile {p}"))
+            .chain((!overrides.is_empty()).then(|| overrides.into()))
+            .collect();
+        if parts.is_empty() { "no profile or overrides".to_string() } else { parts.join(" ") }
+    };
+    let last = describe(&recorded.profile, &recorded.overrides);
+    let asked_overrides = overrides::spelled(&experiment.resolution.overrides);
+    let asked = describe(&a.store.file.profile, &asked_overrides);
+    let file = a.file.display();
+    if a.store.file.profile.is_some() || !asked_overrides.is_empty() {
+        if (&recorded.profile, &recorded.overrides) != (&a.store.file.profile, &asked_overrides) {
+            let command: Vec<String> = a
+                .store
+                .file
+                .profile
+                .iter()
+                .map(|p| format!("--profile {}", shell_quote(p)))
+                .chain(experiment.resolution.overrides.iter().map(|o| format!("--set {}", shell_quote(&o.to_string()))))
+                .collect();
+            bail!(
+                "the store holds experiment `{}` as last run with {last}, not with {asked}: a report shows an \
+                 experiment as its last run recorded it, so run `oneshot-lab run {file} {}` first (finished \
+                 stages are cached), then report",
+                experiment.name,
+                command.join(" ")
+            );
+        }
+    } else if last != asked {
+        eprintln!(
+            "note: reporting `{}` as last run, with {last}; `oneshot-lab run {file}` records the file as written \
+             (finished stages are cached)",
+            experiment.name
+        );
+    }
+    Ok(())
+}
+
 /// Rebuilds an experiment's tables and figures from the store alone.
 pub fn report(a: ReportArgs) -> Result<()> {
     let experiment = Experiment::load(&a.file, &a.store.resolution())?;
@@ -436,6 +482,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
             a.store.dir.store.display()
         );
     }
+    check_as_last_run(&store, &experiment, &a)?;
     let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.dir.store, &experiment.name));
     oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
     super::print::print_table1(&out)?;

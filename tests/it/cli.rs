@@ -295,6 +295,26 @@ fn overrides_change_the_keys_they_touch_and_are_recorded_with_the_experiment() {
     let steps: i64 = conn.query_row("SELECT MAX(steps) FROM episodes", [], |r| r.get(0)).unwrap();
     assert!(steps <= 4, "episodes ran under the overridden horizon: {steps} steps");
 
+    // A report shows the experiment as last run: asked plainly it says which overrides that run had; asked with
+    // other overrides it is refused, naming both; with the same ones it is quiet.
+    let report = |extra: &[&str]| {
+        let mut args = vec!["report", file.to_str().unwrap(), "--store", store.to_str().unwrap()];
+        args.extend(extra);
+        oneshot().args(&args).output().unwrap()
+    };
+    let plain = report(&[]);
+    assert!(plain.status.success(), "{}", String::from_utf8_lossy(&plain.stderr));
+    assert!(String::from_utf8_lossy(&plain.stderr).contains("as last run, with --set eval.horizon=4"));
+    let other = report(&["--set", "eval.horizon=5"]);
+    let err = String::from_utf8_lossy(&other.stderr);
+    assert!(!other.status.success(), "a report under other overrides succeeded");
+    assert!(
+        err.contains("`refs`") && err.contains("--set eval.horizon=4") && err.contains("--set eval.horizon=5"),
+        "{err}"
+    );
+    let same = report(&["--set", "eval.horizon=4"]);
+    assert!(same.status.success() && !String::from_utf8_lossy(&same.stderr).contains("note:"));
+
     // The same override again is cached; without it the file's own horizon is a new evaluation.
     let plan = |extra: &[&str]| {
         let mut args = vec!["plan", file.to_str().unwrap(), "--store", store.to_str().unwrap()];
