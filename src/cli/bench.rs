@@ -446,7 +446,7 @@ fn bench_eval(episodes: usize, horizon: usize, workers: usize) -> Result<()> {
     let specs = config.episode_specs(world.objects, &HashSet::new());
     for (name, policy) in [("small network", Actor::Network(&trained)), ("random policy", Actor::Random)] {
         let start = Instant::now();
-        let results =
+        let (results, _) =
             rollouts(&policy, &world, &config, &specs, workers, &EvalOutput { strips_dir: None, videos_dir: None })?;
         let s = start.elapsed().as_secs_f64();
         let steps: usize = results.iter().map(|r| r.steps).sum();

@@ -66,10 +66,14 @@ pub struct EvalArgs {
     /// Episode indices to record as GIFs, the demonstration beside the rollout (needs --out).
     #[arg(long, value_delimiter = ',')]
     pub videos: Vec<usize>,
+    /// Write every episode's steps to traces.jsonl: the command, the gripper and its fingers, the object in the
+    /// gripper's frame (needs --out).
+    #[arg(long, requires = "out")]
+    pub traces: bool,
     /// Who moves the agent (default: eval.control).
     #[arg(long, value_enum)]
     pub control: Option<ControlArg>,
-    /// Folder for episodes.jsonl, summary.json, strips and videos.
+    /// Folder for episodes.jsonl, summary.json, traces.jsonl, strips and videos.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Frames of the reference policies' world (a trained policy runs in its own).
@@ -213,6 +217,7 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     config.tasks = a.tasks.unwrap_or(config.tasks);
     config.strips = a.strips;
     config.videos = a.videos;
+    config.traces = a.traces;
     if let Some(control) = a.control {
         config.control = match control {
             ControlArg::Policy => Control::Policy,

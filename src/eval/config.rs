@@ -82,6 +82,9 @@ pub struct EvalConfig {
     pub checkpoints: Vec<u64>,
     /// Who moves the agent: the network's actions, or the scripted expert executing its predicted positions.
     pub control: Control,
+    /// Write every episode's steps (the command, the gripper, its fingers and the object in its frame) to
+    /// `traces.jsonl` beside the episodes.
+    pub traces: bool,
 }
 
 impl Default for EvalConfig {
@@ -105,6 +108,7 @@ impl Default for EvalConfig {
             binarize_gripper: true,
             checkpoints: Vec::new(),
             control: Control::Policy,
+            traces: false,
         }
     }
 }

@@ -23,6 +23,7 @@ pub mod workers;
 pub use actor::{Actor, ActorFiles, Weights};
 pub use config::{ActionChoice, EvalConfig};
 
+use crate::sim::action::ACTION_DIM;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -59,6 +60,31 @@ pub struct GripperClose {
     pub step: usize,
     /// The object in the gripper's frame (x across the fingers, z along them), metres.
     pub object_in_gripper: [f64; 3],
+}
+
+/// One step of an episode as it was executed: what a grasp did, step by step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TraceStep {
+    /// The step (1-based, as `first_reached`).
+    pub step: usize,
+    /// The command executed: target position (m), orientation (angle / pi, axis), gripper (+1 closes).
+    pub action: [f64; ACTION_DIM],
+    /// The gripper's position afterwards (world, metres).
+    pub gripper_pos: [f64; 3],
+    /// The fingers' joint positions afterwards (metres; the Panda's are 0.04 each fully open).
+    pub fingers: [f64; 2],
+    /// The task's object in the gripper's frame afterwards (x across the fingers, z along them), metres.
+    pub object_in_gripper: [f64; 3],
+    pub reached: bool,
+    pub picked: bool,
+    pub placed: bool,
+}
+
+/// The steps of one episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeTrace {
+    pub index: usize,
+    pub steps: Vec<TraceStep>,
 }
 
 /// Where strips and videos go, if any are asked for.

@@ -4,7 +4,7 @@ use super::actor::Actor;
 use super::config::{ActionChoice, Control, EvalConfig};
 use super::history::AgentHistory;
 use super::workers::{EpisodeSpec, WorkerPool, WorkerSpec};
-use super::{EpisodeResult, EvalOutput, GripperClose, strip, video};
+use super::{EpisodeResult, EpisodeTrace, EvalOutput, GripperClose, TraceStep, strip, video};
 use crate::data::augment::AugmentDraw;
 use crate::data::pairs::context_indices;
 use crate::data::trajectory::jpeg_round_trip;
@@ -23,7 +23,8 @@ use tch::{Device, Tensor};
 /// A policy as it runs: the loaded network, or a reference policy.
 pub type LoadedActor<'a> = Actor<&'a TrainedPolicy>;
 
-/// Runs the episodes `specs` of `policy` in waves of `config.batch`, with `workers` simulation threads.
+/// Runs the episodes `specs` of `policy` in waves of `config.batch`, with `workers` simulation threads; with
+/// `config.traces`, also every episode's steps (else the traces are empty).
 pub fn rollouts(
     policy: &LoadedActor,
     world: &WorldConfig,
@@ -31,7 +32,7 @@ pub fn rollouts(
     specs: &[EpisodeSpec],
     workers: usize,
     output: &EvalOutput,
-) -> Result<Vec<EpisodeResult>> {
+) -> Result<(Vec<EpisodeResult>, Vec<EpisodeTrace>)> {
     config.validate()?;
     let device = crate::device::parse_device(&config.device)?;
     if let Actor::Network(p) = policy {
@@ -50,11 +51,13 @@ pub fn rollouts(
         seed: config.seed,
     };
     let pool = WorkerPool::new(workers.clamp(1, config.batch), &spec)?;
-    let mut results = Vec::with_capacity(specs.len());
+    let (mut results, mut traces) = (Vec::with_capacity(specs.len()), Vec::new());
     for wave in specs.chunks(config.batch) {
-        results.extend(run_wave(policy, &pool, wave, world, config, device, output)?);
+        let (r, t) = run_wave(policy, &pool, wave, world, config, device, output)?;
+        results.extend(r);
+        traces.extend(t);
     }
-    Ok(results)
+    Ok((results, traces))
 }
 
 /// `world.key: trained vs evaluated` for every setting in which `trained` and `evaluated` differ.
@@ -108,7 +111,7 @@ fn run_wave(
     config: &EvalConfig,
     device: Device,
     output: &EvalOutput,
-) -> Result<Vec<EpisodeResult>> {
+) -> Result<(Vec<EpisodeResult>, Vec<EpisodeTrace>)> {
     let started = pool.start(wave)?;
     let n = wave.len();
     let mut inputs: Vec<NetworkInputs> = Vec::new();
@@ -158,6 +161,10 @@ fn run_wave(
             first_close: None,
         })
         .collect();
+    let mut traces: Vec<EpisodeTrace> = match config.traces {
+        true => wave.iter().map(|e| EpisodeTrace { index: e.index, steps: Vec::new() }).collect(),
+        false => Vec::new(),
+    };
 
     for t in 0..config.horizon {
         let active: Vec<usize> = (0..n).filter(|&j| !results[j].placed).collect();
@@ -203,6 +210,21 @@ fn run_wave(
             if let (true, Some(action)) = (filmed[j], s.action) {
                 executed[j].push(action);
             }
+            if let (Some(trace), Some(action), Some(object_in_gripper), Some((gripper_pos, fingers))) =
+                (traces.get_mut(j), s.action, s.target_in_gripper, s.gripper)
+            {
+                let m = s.milestones;
+                trace.steps.push(TraceStep {
+                    step: t + 1,
+                    action: action.0,
+                    gripper_pos,
+                    fingers,
+                    object_in_gripper,
+                    reached: m.reached,
+                    picked: m.picked,
+                    placed: m.placed,
+                });
+            }
         }
     }
     if let Some(dir) = &output.strips_dir {
@@ -222,7 +244,7 @@ fn run_wave(
                 .with_context(|| format!("writing the video of episode {}", wave[j].index))?;
         }
     }
-    Ok(results)
+    Ok((results, traces))
 }
 
 /// The grasp and drop positions the network predicts for each episode of a wave from its context and first

@@ -53,6 +53,9 @@ pub struct Stepped {
     pub action: Option<Action>,
     /// The task's object in the gripper's frame after it (none where the episode was left alone).
     pub target_in_gripper: Option<[f64; 3]>,
+    /// The gripper's position (world, metres) and its fingers' joint positions after it (none where the episode
+    /// was left alone).
+    pub gripper: Option<([f64; 3], [f64; 2])>,
 }
 
 enum Command {
@@ -133,6 +136,7 @@ impl Worker {
                     milestones: slot.env.milestones(),
                     action: None,
                     target_in_gripper: None,
+                    gripper: None,
                 });
                 continue;
             };
@@ -147,11 +151,13 @@ impl Worker {
             };
             slot.env.step(&action);
             let frame = slot.env.render_with(camera)?;
+            let observed = slot.env.observe();
             out.push(Stepped {
                 frame,
                 milestones: slot.env.milestones(),
                 action: Some(action),
                 target_in_gripper: slot.env.target_in_gripper(),
+                gripper: Some((observed.eef_pos, observed.gripper_qpos)),
             });
         }
         Ok(out)

@@ -296,3 +296,39 @@ fn a_filmed_episode_replays_to_the_same_frames_and_renders_larger_for_its_video(
     let err = replay(&world, world.image, &claimed, Object::ALL, &actions, 100).unwrap_err().to_string();
     assert!(err.contains("replay of episode 0"), "{err}");
 }
+
+#[test]
+fn traces_record_every_step_of_every_episode_as_the_episodes_saw_it() {
+    use oneshot_lab::eval::EpisodeTrace;
+    use oneshot_lab::eval::run::{EPISODES_FILE, TRACES_FILE};
+    let _rng = torch_rng();
+    let out = scratch("eval-traces");
+    let none = HashSet::new();
+    let traced = EvalConfig { traces: true, ..config(4, 40) };
+    let err = run_eval(&Actor::Expert, Some(&world()), &traced, &Layouts::Fresh(none.clone()), 1, None).unwrap_err();
+    assert!(err.to_string().contains("--out"), "{err}");
+    let (episodes, _) =
+        run_eval(&Actor::Expert, Some(&world()), &traced, &Layouts::Fresh(none.clone()), 1, Some(&out)).unwrap();
+    let lines = std::fs::read_to_string(out.join(TRACES_FILE)).unwrap();
+    let traces: Vec<EpisodeTrace> = lines.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(traces.len(), episodes.len());
+    for (trace, episode) in traces.iter().zip(&episodes) {
+        assert_eq!(trace.index, episode.index);
+        assert_eq!(trace.steps.len(), episode.steps, "one line per step taken");
+        let last = trace.steps.last().unwrap();
+        assert_eq!((last.reached, last.picked, last.placed), (episode.reached, episode.picked, episode.placed));
+        let close = episode.first_close.expect("the expert closes");
+        let first = trace.steps.iter().find(|s| s.action[7] > 0.0).unwrap();
+        assert_eq!((first.step, first.object_in_gripper), (close.step, close.object_in_gripper));
+        // Closed on its object, the fingers stop apart (they meet only on air), and the lift raises the gripper.
+        let held = trace.steps.iter().find(|s| s.picked).expect("the expert picks");
+        assert!(held.fingers[0] - held.fingers[1] > 0.01, "{:?}", held.fingers);
+        assert!(held.gripper_pos[2] > first.gripper_pos[2] + 0.03);
+    }
+    // Untraced, the folder holds no traces, and the episodes are the same.
+    let plain = scratch("eval-untraced");
+    let (again, _) =
+        run_eval(&Actor::Expert, Some(&world()), &config(4, 40), &Layouts::Fresh(none), 1, Some(&plain)).unwrap();
+    assert_eq!(again, episodes);
+    assert!(plain.join(EPISODES_FILE).exists() && !plain.join(TRACES_FILE).exists());
+}

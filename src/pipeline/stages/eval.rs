@@ -51,6 +51,7 @@ fn key_inputs(world: &WorldConfig, eval: &EvalConfig, policy: &str) -> Value {
             ("eval.videos", json!([])),
             ("eval.control", json!("policy")),
             ("eval.video_width", json!(320)),
+            ("eval.traces", json!(false)),
         ],
     );
     inputs
@@ -101,4 +102,20 @@ pub fn run(job: &EvalJob, upstream: &Upstream, staging: &Path, ctx: &RunContext)
         episodes,
         ..StageOutputs::default()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_added_later_stay_out_of_keys_at_their_first_value() {
+        let world = WorldConfig::default();
+        let plain = key_inputs(&world, &EvalConfig::default(), "trained");
+        for later in ["videos", "control", "video_width", "traces"] {
+            assert!(plain["eval"].get(later).is_none(), "eval.{later} at its default is not in the key");
+        }
+        let traced = key_inputs(&world, &EvalConfig { traces: true, ..EvalConfig::default() }, "trained");
+        assert_eq!(traced["eval"]["traces"], json!(true), "an evaluation that keeps traces is another stage");
+    }
 }
