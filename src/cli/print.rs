@@ -35,6 +35,16 @@ pub fn print_summary(s: &EvalSummary) {
             }
         }
     }
+    if let Some(h) = &s.holds {
+        println!(
+            "held the object on the table (closed, fingers stopped on it) in {} episodes, {} steps; the next command \
+             opened the gripper after {:.0}% of them, lifted after {:.0}%",
+            h.episodes,
+            h.steps,
+            100.0 * h.opened,
+            100.0 * h.lifted
+        );
+    }
 }
 
 /// Prints the report with absolute units beside the normalised ones.

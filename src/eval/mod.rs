@@ -10,6 +10,7 @@ pub mod choice;
 pub mod config;
 pub mod grasps;
 pub mod history;
+pub mod holds;
 pub mod layouts;
 pub mod probe;
 pub mod rollout;

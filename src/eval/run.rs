@@ -44,7 +44,7 @@ pub fn run_eval(
     let output = EvalOutput { strips_dir: out.map(|o| o.join("strips")), videos_dir: out.map(|o| o.join(VIDEOS_DIR)) };
     let (results, steps) =
         rollouts(&loaded, &world, config, &layouts.episodes(config, world.objects)?, workers, &output)?;
-    let summary = summarize(loaded.name(), &results);
+    let summary = summarize(loaded.name(), &results, &steps);
     if let Some(out) = out {
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         let lines: Vec<String> = results.iter().map(serde_json::to_string).collect::<Result<_, _>>()?;

@@ -1,6 +1,8 @@
 //! Aggregates of evaluation episodes: success per stage, overall and per task, pooled or as a mean over seeds.
 use super::EpisodeResult;
+use super::EpisodeTrace;
 use super::grasps::GraspSummary;
+use super::holds::HoldSummary;
 pub use super::stats::StageRates;
 use super::stats::{Counts, Rate, wilson};
 use crate::sim::task::NUM_TASKS;
@@ -27,10 +29,14 @@ pub struct EvalSummary {
     /// written before it was recorded).
     #[serde(default)]
     pub grasps: Option<GraspSummary>,
+    /// What the next command did while the gripper held the object on the table (only where the evaluation kept
+    /// traces).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub holds: Option<HoldSummary>,
 }
 
-/// Summarises the episodes of one evaluation of `policy`.
-pub fn summarize(policy: &str, results: &[EpisodeResult]) -> EvalSummary {
+/// Summarises the episodes of one evaluation of `policy`, and their traces where it kept them.
+pub fn summarize(policy: &str, results: &[EpisodeResult], traces: &[EpisodeTrace]) -> EvalSummary {
     EvalSummary {
         policy: policy.to_string(),
         episodes: results.len(),
@@ -38,6 +44,7 @@ pub fn summarize(policy: &str, results: &[EpisodeResult]) -> EvalSummary {
         per_task: (0..NUM_TASKS).map(|t| pooled(results.iter().filter(|e| e.task == t))).collect(),
         wrong_bin: Some(wilson(results.iter().filter(|e| e.wrong_bin).count(), results.len())),
         grasps: Some(GraspSummary::of(results)),
+        holds: HoldSummary::of(traces),
     }
 }
 
@@ -82,11 +89,11 @@ mod tests {
     fn pooled_and_per_seed_aggregates_count_correctly() {
         let seed_a = vec![episode(0, [true, true, true]), episode(1, [true, false, false])];
         let seed_b = vec![episode(0, [true, true, false]), episode(1, [false, false, false])];
-        let s = summarize("x", &seed_a);
+        let s = summarize("x", &seed_a, &[]);
         assert_eq!((s.overall.reached.value, s.overall.placed.value), (1.0, 0.5));
         assert_eq!(s.wrong_bin.unwrap().value, 0.0);
         let wrong = EpisodeResult { wrong_bin: true, ..episode(2, [true, true, false]) };
-        assert_eq!(summarize("x", &[wrong, episode(2, [false; 3])]).wrong_bin.unwrap().value, 0.5);
+        assert_eq!(summarize("x", &[wrong, episode(2, [false; 3])], &[]).wrong_bin.unwrap().value, 0.5);
         assert_eq!(s.per_task[1].picked.value, 0.0);
         assert_eq!(s.per_task[5].reached.n, 0);
         let (all, mean) = across_seeds(&[seed_a, seed_b]);

@@ -307,8 +307,12 @@ fn traces_record_every_step_of_every_episode_as_the_episodes_saw_it() {
     let traced = EvalConfig { traces: true, ..config(4, 40) };
     let err = run_eval(&Actor::Expert, Some(&world()), &traced, &Layouts::Fresh(none.clone()), 1, None).unwrap_err();
     assert!(err.to_string().contains("--out"), "{err}");
-    let (episodes, _) =
+    let (episodes, summary) =
         run_eval(&Actor::Expert, Some(&world()), &traced, &Layouts::Fresh(none.clone()), 1, Some(&out)).unwrap();
+    // The expert holds its object on the table in every episode, never lets go there, and lifts it.
+    let holds = summary.holds.expect("traced evaluations summarise the holds");
+    assert_eq!((holds.episodes, holds.opened), (4, 0.0), "{holds:?}");
+    assert!(holds.lifted > 0.0 && holds.steps >= 4, "{holds:?}");
     let lines = std::fs::read_to_string(out.join(TRACES_FILE)).unwrap();
     let traces: Vec<EpisodeTrace> = lines.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(traces.len(), episodes.len());
@@ -327,8 +331,9 @@ fn traces_record_every_step_of_every_episode_as_the_episodes_saw_it() {
     }
     // Untraced, the folder holds no traces, and the episodes are the same.
     let plain = scratch("eval-untraced");
-    let (again, _) =
+    let (again, untraced) =
         run_eval(&Actor::Expert, Some(&world()), &config(4, 40), &Layouts::Fresh(none), 1, Some(&plain)).unwrap();
     assert_eq!(again, episodes);
+    assert!(untraced.holds.is_none());
     assert!(plain.join(EPISODES_FILE).exists() && !plain.join(TRACES_FILE).exists());
 }

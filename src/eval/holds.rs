@@ -1,0 +1,107 @@
+//! What the agent did once its gripper held the task's object, from the episodes' traces: whether the next
+//! command kept the grip and lifted, or let go. It tells a grasp lost after closing on the object from one that
+//! never reached it.
+use super::EpisodeTrace;
+use super::TraceStep;
+use serde::{Deserialize, Serialize};
+
+/// Fingers further apart than this after a close have stopped on something (metres; the Panda's open fingers
+/// are 0.08 apart, closed on air 0).
+const STOPPED_APART: f64 = 0.01;
+/// The object counts as between the fingers within the reach radius of the grip site across and sideways.
+const BETWEEN: f64 = 0.03;
+/// A command that targets the gripper this much higher than it is asks for a lift (metres).
+const LIFT: f64 = 0.05;
+
+/// Steps at which the gripper held the object on the table, and what the next command did.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct HoldSummary {
+    /// Episodes with at least one such step.
+    pub episodes: usize,
+    /// Such steps that had a next step.
+    pub steps: usize,
+    /// Fraction of them whose next command opened the gripper.
+    pub opened: f64,
+    /// Fraction of them whose next command targeted a lift.
+    pub lifted: f64,
+}
+
+/// Whether after `s` the gripper, commanded closed, holds the task's object that still lies on the table: the
+/// fingers stopped apart and the object between them.
+fn holding(s: &TraceStep) -> bool {
+    let [x, y, _] = s.object_in_gripper;
+    s.action[7] > 0.0
+        && s.fingers[0] - s.fingers[1] > STOPPED_APART
+        && x.abs() < BETWEEN
+        && y.abs() < BETWEEN
+        && !s.picked
+}
+
+impl HoldSummary {
+    /// Of the traces of one evaluation; none without traces.
+    pub fn of(traces: &[EpisodeTrace]) -> Option<HoldSummary> {
+        if traces.is_empty() {
+            return None;
+        }
+        let (mut episodes, mut steps, mut opened, mut lifted) = (0, 0, 0, 0);
+        for trace in traces {
+            let mut held = false;
+            for pair in trace.steps.windows(2) {
+                let (now, next) = (&pair[0], &pair[1]);
+                if holding(now) {
+                    held = true;
+                    steps += 1;
+                    opened += usize::from(next.action[7] <= 0.0);
+                    lifted += usize::from(next.action[2] > now.gripper_pos[2] + LIFT);
+                }
+            }
+            episodes += usize::from(held);
+        }
+        let share = |k: usize| if steps == 0 { 0.0 } else { k as f64 / steps as f64 };
+        Some(HoldSummary { episodes, steps, opened: share(opened), lifted: share(lifted) })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(closed: bool, fingers: f64, offset: [f64; 3], target_z: f64, z: f64) -> TraceStep {
+        let mut action = [0.0; 8];
+        action[2] = target_z;
+        action[7] = if closed { 1.0 } else { -1.0 };
+        TraceStep {
+            step: 1,
+            action,
+            gripper_pos: [0.5, 0.0, z],
+            fingers: [fingers / 2.0, -fingers / 2.0],
+            object_in_gripper: offset,
+            reached: true,
+            picked: false,
+            placed: false,
+        }
+    }
+
+    #[test]
+    fn a_hold_is_a_closed_grip_stopped_on_the_object_and_its_next_command_is_counted() {
+        let on = [0.005, -0.01, 0.02];
+        let trace = |steps| EpisodeTrace { index: 0, steps };
+        let traces = [
+            // Holds twice: the next command first stays down, then lifts.
+            trace(vec![
+                step(true, 0.05, on, 0.85, 0.85),
+                step(true, 0.05, on, 0.85, 0.85),
+                step(true, 0.05, on, 1.0, 0.9),
+            ]),
+            // Holds, then lets go.
+            trace(vec![step(true, 0.05, on, 0.85, 0.85), step(false, 0.07, on, 0.85, 0.85)]),
+            // Closed on air beside the object, and open over it: no hold.
+            trace(vec![step(true, 0.0, on, 0.85, 0.85), step(true, 0.05, [0.05, 0.0, 0.0], 0.85, 0.85)]),
+            trace(vec![step(false, 0.08, on, 0.85, 0.85), step(false, 0.08, on, 0.85, 0.85)]),
+        ];
+        let s = HoldSummary::of(&traces).unwrap();
+        assert_eq!((s.episodes, s.steps), (2, 3));
+        assert_eq!((s.opened, s.lifted), (1.0 / 3.0, 1.0 / 3.0));
+        assert_eq!(HoldSummary::of(&[]), None);
+    }
+}
