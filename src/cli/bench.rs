@@ -16,7 +16,7 @@ use oneshot_lab::pipeline::load_plan;
 use oneshot_lab::pipeline::stages::StageOutputs;
 use oneshot_lab::pipeline::store::{Claim, Store};
 use oneshot_lab::sim::camera::ImageSize;
-use oneshot_lab::sim::env::WorldConfig;
+use oneshot_lab::sim::env::{STATE_DIM, WorldConfig};
 use oneshot_lab::train::adam::Adam;
 use oneshot_lab::train::config::{LossWeights, MemoryFormat, Precision, TrainConfig, check_precision};
 use oneshot_lab::train::throughput;
@@ -275,6 +275,7 @@ fn synthetic_batch(c: &BenchConfig, device: Device) -> DeviceBatch {
         poses: Tensor::rand([b, 6], opts),
         pose_weights: Tensor::ones([b, ta], opts),
         tasks: Tensor::randint(16, [b], (Kind::Int64, device)),
+        states: Tensor::rand([b, ta, STATE_DIM as i64], opts),
     }
 }
 

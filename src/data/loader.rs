@@ -6,6 +6,7 @@ use super::pairs::{FrameData, FrameForm, PairDataset, Sample, Split, Windows};
 use crate::model::batch::DeviceBatch;
 use crate::model::config::ModelConfig;
 use crate::seeds::derive_seed;
+use crate::sim::env::STATE_DIM;
 use anyhow::Result;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -20,6 +21,8 @@ pub struct Batch {
     pub size: usize,
     pub frames: BatchFrames,
     pub actions: Vec<f32>,
+    /// The robot's own state at each agent frame `[B, Ta, STATE_DIM]`.
+    pub states: Vec<f32>,
     pub points: Vec<f32>,
     pub poses: Vec<f32>,
     /// The weight of each agent frame `[B, Ta]` in the pose loss (all 1 unless [`Batch::pose_at_start_only`]).
@@ -85,7 +88,7 @@ impl Batch {
         pin_for: Device,
     ) -> Batch {
         let size = samples.len();
-        let (mut actions, mut points, mut poses) = (vec![], vec![], vec![]);
+        let (mut actions, mut states, mut points, mut poses) = (vec![], vec![], vec![], vec![]);
         let sources = samples.iter().map(|s| s.source).collect();
         let starts = samples.iter().map(|s| s.start).collect();
         let pose_weights = vec![1.0; size * model.agent_frames];
@@ -94,6 +97,7 @@ impl Batch {
         let mut jitter = false;
         for s in samples {
             actions.extend(s.actions);
+            states.extend(s.states);
             points.extend(s.point);
             poses.extend(s.poses);
             for (frames, floats, raw) in
@@ -128,7 +132,7 @@ impl Batch {
             );
             BatchFrames::Raw { context: host(&bytes, tc), agent: host(&agent_bytes, ta), draws, jitter }
         };
-        Batch { size, frames, actions, points, poses, pose_weights, starts, tasks, sources }
+        Batch { size, frames, actions, states, points, poses, pose_weights, starts, tasks, sources }
     }
 
     /// Copies the batch to `device` (augmenting raw frames there) with the shapes `model` and frames of
@@ -151,6 +155,7 @@ impl Batch {
             context,
             agent,
             actions: t(&self.actions, &[b, ta - 1, 8]),
+            states: t(&self.states, &[b, ta, STATE_DIM as i64]),
             points: t(&self.points, &[b, 2]),
             poses: t(&self.poses, &[b, 6]),
             pose_weights: t(&self.pose_weights, &[b, ta]),
@@ -318,6 +323,7 @@ mod tests {
             size: 1,
             frames: BatchFrames::Normalised { context: vec![], agent: vec![] },
             actions,
+            states: vec![],
             points: vec![],
             poses: vec![],
             pose_weights: vec![],
@@ -338,6 +344,7 @@ mod tests {
             size: 2,
             frames: BatchFrames::Normalised { context: vec![], agent: vec![] },
             actions: vec![],
+            states: vec![],
             points: vec![],
             poses: vec![],
             pose_weights: vec![1.0; 6],

@@ -375,6 +375,7 @@ impl PairDataset {
         let actions = (start..start + model.agent_frames - 1)
             .flat_map(|t| Action(agent.actions[t].map(f64::from)).normalized())
             .collect();
+        let states = (start..start + model.agent_frames).flat_map(|t| agent.robot_state(t)).collect();
         let [col, row] = agent.eef_pixel[start + model.agent_frames - 1];
         let point = [2.0 * col / w as f32 - 1.0, 2.0 * row / h as f32 - 1.0];
         Ok(Sample {
@@ -384,6 +385,7 @@ impl PairDataset {
             context,
             agent: frames,
             actions,
+            states,
             point,
             poses: agent.grasp_and_drop(),
         })
@@ -432,6 +434,8 @@ pub struct Sample {
     pub agent: FrameData,
     /// `[Ta - 1, 8]` normalised actions, flattened.
     pub actions: Vec<f32>,
+    /// `[Ta, STATE_DIM]` the robot's own state at each agent frame ([`crate::sim::env::robot_state`]), flattened.
+    pub states: Vec<f32>,
     /// End-effector pixel at the window's last frame, on the [-1, 1] grid (x = column, y = row).
     pub point: [f32; 2],
     /// The agent trajectory's grasp and drop positions (see [`Trajectory::grasp_and_drop`]).

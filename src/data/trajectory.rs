@@ -9,6 +9,7 @@
 //!
 //! The header's `__metadata__` holds one key, `oneshot`, whose value is the JSON of [`TrajectoryMeta`].
 //! From Python: `safetensors.numpy.load_file(path)` and decode frames with any JPEG decoder.
+use crate::sim::env::{STATE_DIM, robot_state};
 use crate::sim::milestones::Milestones;
 use crate::sim::robot::Robot;
 use crate::sim::rollout::Episode;
@@ -78,6 +79,11 @@ impl Trajectory {
     /// Whether the trajectory has no steps.
     pub fn is_empty(&self) -> bool {
         self.frames_jpeg.is_empty()
+    }
+
+    /// The robot's own state at frame `t` (see [`crate::sim::env::robot_state`]).
+    pub fn robot_state(&self, t: usize) -> [f32; STATE_DIM] {
+        robot_state(self.eef_pos[t].map(f64::from), self.eef_rot[t].map(f64::from), self.gripper_qpos[t].map(f64::from))
     }
 
     /// The targets of DAML's auxiliary head: see [`grasp_and_drop`].

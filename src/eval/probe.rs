@@ -104,7 +104,7 @@ pub fn open_loop(
         let host = build_batch(data, split, model, n, seed, k, placement, None, AugmentAt::Host)?;
         let b = host.to_device(model, data.height, data.width, device);
         let steps = b.actions.size()[1];
-        let out = tch::no_grad(|| policy.policy.forward_t(&b.context, &b.agent, false));
+        let out = tch::no_grad(|| policy.policy.forward_with_states(&b.context, &b.agent, &b.states, false));
         let trained = MixtureParams {
             means: out.actions.means.narrow(1, 0, steps),
             log_scales: out.actions.log_scales.narrow(1, 0, steps),
@@ -222,7 +222,7 @@ fn swap_demonstrations(
             .collect::<Result<Vec<_>>>()?;
         let b = Batch::from_samples(samples, model, data.height, data.width, Device::Cpu);
         let b = b.to_device(model, data.height, data.width, policy.vars.device());
-        let out = tch::no_grad(|| policy.policy.forward_t(&b.context, &b.agent, false));
+        let out = tch::no_grad(|| policy.policy.forward_with_states(&b.context, &b.agent, &b.states, false));
         let first = MixtureParams {
             means: out.actions.means.narrow(1, 0, 1),
             log_scales: out.actions.log_scales.narrow(1, 0, 1),

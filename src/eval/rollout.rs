@@ -11,7 +11,7 @@ use crate::data::trajectory::jpeg_round_trip;
 use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
 use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
-use crate::sim::env::WorldConfig;
+use crate::sim::env::{STATE_DIM, WorldConfig};
 use crate::sim::expert::Guidance;
 use crate::sim::milestones::Milestones;
 use crate::train::TrainedPolicy;
@@ -96,10 +96,11 @@ fn command(normalised: &[f32], step: usize, config: &EvalConfig, rest: (f64, [f6
     a
 }
 
-/// What the network needs of one episode: its context frames and the window of its own recent frames.
+/// What the network needs of one episode: its context frames and the window of its own recent frames, each with
+/// the robot's state when it was seen.
 struct NetworkInputs {
     context: Vec<f32>,
-    history: AgentHistory<Vec<f32>>,
+    history: AgentHistory<(Vec<f32>, [f32; STATE_DIM])>,
 }
 
 /// Runs one lockstep wave of episodes.
@@ -124,7 +125,7 @@ fn run_wave(
                 context.extend(network_frame(&s.demo_frames[t], world, q)?);
             }
             let mut history = AgentHistory::new(config.history, config.history_frames);
-            history.push(network_frame(&s.frame, world, q)?);
+            history.push((network_frame(&s.frame, world, q)?, s.state));
             inputs.push(NetworkInputs { context, history });
         }
     }
@@ -201,8 +202,9 @@ fn run_wave(
             {
                 r.first_close = Some(GripperClose { step: t + 1, object_in_gripper: offset });
             }
-            if let (Actor::Network(p), false) = (policy, scripted) {
-                inputs[j].history.push(network_frame(&s.frame, world, p.summary.jpeg_quality)?);
+            if let (Actor::Network(p), false, Some(observed)) = (policy, scripted, &s.observed) {
+                let frame = network_frame(&s.frame, world, p.summary.jpeg_quality)?;
+                inputs[j].history.push((frame, observed.robot_state()));
             }
             if recorded[j] {
                 frames[j].push((s.frame.clone(), s.milestones));
@@ -210,15 +212,15 @@ fn run_wave(
             if let (true, Some(action)) = (filmed[j], s.action) {
                 executed[j].push(action);
             }
-            if let (Some(trace), Some(action), Some(object_in_gripper), Some((gripper_pos, fingers))) =
-                (traces.get_mut(j), s.action, s.target_in_gripper, s.gripper)
+            if let (Some(trace), Some(action), Some(object_in_gripper), Some(observed)) =
+                (traces.get_mut(j), s.action, s.target_in_gripper, &s.observed)
             {
                 let m = s.milestones;
                 trace.steps.push(TraceStep {
                     step: t + 1,
                     action: action.0,
-                    gripper_pos,
-                    fingers,
+                    gripper_pos: observed.eef_pos,
+                    fingers: observed.gripper_qpos,
                     object_in_gripper,
                     reached: m.reached,
                     picked: m.picked,
@@ -260,7 +262,7 @@ fn predicted_guidance(
     let tc = p.policy.config().context_len() as i64;
     let ctx: Vec<f32> = inputs.iter().flat_map(|i| i.context.iter().copied()).collect();
     let first: Vec<f32> =
-        inputs.iter().flat_map(|i| i.history.frames().next().into_iter().flatten().copied()).collect();
+        inputs.iter().flat_map(|i| i.history.frames().next().into_iter().flat_map(|(f, _)| f).copied()).collect();
     let ctx = Tensor::from_slice(&ctx).view([b, tc, 3, h, w]).to_device(device);
     let agent = Tensor::from_slice(&first).view([b, 1, 3, h, w]).to_device(device);
     let poses = tch::no_grad(|| p.policy.predict_poses(&ctx, &agent))
@@ -284,11 +286,15 @@ fn network_actions(
     let tc = p.policy.config().context_len() as i64;
     let ta = inputs[active[0]].history.len() as i64;
     let ctx: Vec<f32> = active.iter().flat_map(|&j| inputs[j].context.iter().copied()).collect();
-    let agent: Vec<f32> = active.iter().flat_map(|&j| inputs[j].history.frames().flatten().copied()).collect();
+    let agent: Vec<f32> =
+        active.iter().flat_map(|&j| inputs[j].history.frames().flat_map(|(f, _)| f).copied()).collect();
+    let states: Vec<f32> =
+        active.iter().flat_map(|&j| inputs[j].history.frames().flat_map(|(_, s)| s).copied()).collect();
     let ctx = Tensor::from_slice(&ctx).view([b, tc, 3, h, w]).to_device(device);
     let agent = Tensor::from_slice(&agent).view([b, ta, 3, h, w]).to_device(device);
+    let states = Tensor::from_slice(&states).view([b, ta, STATE_DIM as i64]).to_device(device);
     let sample = tch::no_grad(|| {
-        let out = p.policy.forward_t(&ctx, &agent, false);
+        let out = p.policy.forward_with_states(&ctx, &agent, &states, false);
         let last = |t: &Tensor| t.select(1, ta - 1);
         let params = MixtureParams {
             means: last(&out.actions.means),

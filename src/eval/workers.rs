@@ -5,7 +5,7 @@ use super::actor::Actor;
 use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
 use crate::sim::camera::Camera;
-use crate::sim::env::{Env, WorldConfig};
+use crate::sim::env::{Env, Observation, STATE_DIM, WorldConfig};
 use crate::sim::expert::{Expert, Guidance};
 use crate::sim::milestones::Milestones;
 use crate::sim::object::Object;
@@ -41,6 +41,8 @@ pub struct Started {
     pub demo_seed: u64,
     /// The agent's first frame.
     pub frame: Vec<u8>,
+    /// The robot's own state at it.
+    pub state: [f32; STATE_DIM],
     /// The agent's gripper pointing down at its rest yaw, as (angle / pi, axis): what a fixed-yaw expert holds.
     pub rest_orientation: (f64, [f64; 3]),
 }
@@ -53,9 +55,8 @@ pub struct Stepped {
     pub action: Option<Action>,
     /// The task's object in the gripper's frame after it (none where the episode was left alone).
     pub target_in_gripper: Option<[f64; 3]>,
-    /// The gripper's position (world, metres) and its fingers' joint positions after it (none where the episode
-    /// was left alone).
-    pub gripper: Option<([f64; 3], [f64; 2])>,
+    /// What the robot sensed after it (none where the episode was left alone).
+    pub observed: Option<Observation>,
 }
 
 enum Command {
@@ -121,7 +122,8 @@ impl Worker {
             slot.expert = (self.spec.chooser == Actor::Expert).then(|| Expert::new(&slot.env));
             slot.rng = ChaCha8Rng::seed_from_u64(derive_seed("random-policy", &[self.spec.seed, spec.index as u64]));
             let frame = slot.env.render_with(camera)?;
-            out.push(Started { demo_frames, demo_seed, frame, rest_orientation: slot.env.rest_orientation() });
+            let (state, rest_orientation) = (slot.env.observe().robot_state(), slot.env.rest_orientation());
+            out.push(Started { demo_frames, demo_seed, frame, state, rest_orientation });
         }
         Ok(out)
     }
@@ -136,7 +138,7 @@ impl Worker {
                     milestones: slot.env.milestones(),
                     action: None,
                     target_in_gripper: None,
-                    gripper: None,
+                    observed: None,
                 });
                 continue;
             };
@@ -151,13 +153,12 @@ impl Worker {
             };
             slot.env.step(&action);
             let frame = slot.env.render_with(camera)?;
-            let observed = slot.env.observe();
             out.push(Stepped {
                 frame,
                 milestones: slot.env.milestones(),
                 action: Some(action),
                 target_in_gripper: slot.env.target_in_gripper(),
-                gripper: Some((observed.eef_pos, observed.gripper_qpos)),
+                observed: Some(slot.env.observe()),
             });
         }
         Ok(out)

@@ -203,6 +203,11 @@ pub struct ModelConfig {
     /// What the pose head reads: `joint` (the task embedding and the frame's features) or `object` (the task
     /// embedding, detached, and the object attention's positions; needs `pose_head` and `object_attention`).
     pub pose_head_input: PoseHeadInput,
+    /// The robot's own state (end-effector position and orientation, finger joints: the authors' `ee_aa` and
+    /// `gripper_qpos`) joined to each agent frame's embedding where the action is read, as the authors'
+    /// `concat_state` does; on the architectures with the paper's heads. A departure: their experiments leave it
+    /// off (false), so the policy sees only pictures.
+    pub concat_state: bool,
     /// Starting weights of the object attention (`object_attention.*`), set by the train stage from a `[pretrain]`
     /// whose `object_attention_steps` trained one; not an experiment-file key.
     #[serde(skip)]
@@ -243,6 +248,7 @@ impl Default for ModelConfig {
             object_attention_input: ObjectAttentionInput::Mixed,
             object_attention_query: ObjectAttentionQuery::Embedding,
             pose_head_input: PoseHeadInput::Joint,
+            concat_state: false,
             pretrained_object_attention: None,
         }
     }
@@ -307,6 +313,12 @@ impl ModelConfig {
         if self.pose_head && !registration.paper_heads {
             bail!(
                 "model.pose_head = true needs an architecture that ends in the paper's heads, not {:?}",
+                self.architecture.0
+            );
+        }
+        if self.concat_state && !registration.paper_heads {
+            bail!(
+                "model.concat_state = true needs an architecture that ends in the paper's heads, not {:?}",
                 self.architecture.0
             );
         }

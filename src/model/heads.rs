@@ -4,6 +4,7 @@ use super::config::{ModelConfig, PoseHeadInput};
 use super::mixture::{MixtureHead, MixtureSpec};
 use super::output::{PointPrediction, PolicyOutput};
 use crate::sim::action::ACTION_RANGES;
+use crate::sim::env::STATE_DIM;
 use crate::sim::task::NUM_TASKS;
 use tch::nn::{self, Module, ModuleT};
 use tch::{Kind, Tensor};
@@ -143,6 +144,8 @@ pub struct PolicyHeads {
     object_width: i64,
     /// `model.task_head`: task embedding -> logits of the sixteen tasks.
     task_head: Option<nn::Linear>,
+    /// `model.concat_state`: the robot's state joins each frame's features where the action is read.
+    concat_state: bool,
 }
 
 impl PolicyHeads {
@@ -150,12 +153,13 @@ impl PolicyHeads {
     /// the object attention's positions), under `vs` (parameters `policy`, `inverse`, `action_head`,
     /// `point_head`, and `pose_head` and `task_head` when the model has them).
     pub fn new(vs: &nn::Path, latent: i64, frame: i64, object: i64, config: &ModelConfig) -> PolicyHeads {
+        let joint = latent + frame + if config.concat_state { STATE_DIM as i64 } else { 0 };
         let pose_width = match config.pose_head_input {
-            PoseHeadInput::Joint => latent + frame,
+            PoseHeadInput::Joint => joint,
             PoseHeadInput::Object => latent + object,
         };
         PolicyHeads {
-            policy: nn::linear(vs / "policy", latent + frame, config.policy_hidden, Default::default()),
+            policy: nn::linear(vs / "policy", joint, config.policy_hidden, Default::default()),
             inverse: nn::linear(vs / "inverse", 2 * frame, config.policy_hidden, Default::default()),
             action_head: MixtureHead::new(&(vs / "action_head"), config.policy_hidden, MixtureSpec::for_model(config)),
             point_head: PointHead::new(&(vs / "point_head"), latent, config.point_hidden),
@@ -171,15 +175,24 @@ impl PolicyHeads {
             task_head: config
                 .task_head
                 .then(|| nn::linear(vs / "task_head", latent, NUM_TASKS as i64, Default::default())),
+            concat_state: config.concat_state,
         }
     }
 
     /// Outputs for a task embedding `[B, latent]` and frame features `[B, Ta, frame]` whose last `object`
-    /// entries (see [`PolicyHeads::new`]) are the object attention's positions.
-    pub fn forward(&self, task: &Tensor, frames: &Tensor) -> PolicyOutput {
+    /// entries (see [`PolicyHeads::new`]) are the object attention's positions, and (with `model.concat_state`)
+    /// the robot's state at each frame `[B, Ta, STATE_DIM]`.
+    ///
+    /// # Panics
+    /// With `model.concat_state` and no states.
+    pub fn forward(&self, task: &Tensor, frames: &Tensor, states: Option<&Tensor>) -> PolicyOutput {
         let (b, ta) = (frames.size()[0], frames.size()[1]);
         let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
-        let joint = Tensor::cat(&[&task_per_frame, frames], -1);
+        let joint = match (self.concat_state, states) {
+            (false, _) => Tensor::cat(&[&task_per_frame, frames], -1),
+            (true, Some(s)) => Tensor::cat(&[&task_per_frame, frames, &s.to_kind(frames.kind())], -1),
+            (true, None) => panic!("model.concat_state: the network needs the robot's state at each agent frame"),
+        };
         let hidden = self.policy.forward(&joint).relu();
         let pairs = Tensor::cat(&[frames.narrow(1, 0, ta - 1), frames.narrow(1, 1, ta - 1)], -1);
         PolicyOutput {
@@ -280,7 +293,7 @@ mod tests {
             let opts = (Kind::Float, tch::Device::Cpu);
             let task = Tensor::randn([2, 3], opts).set_requires_grad(true);
             let frames = Tensor::randn([2, 4, 5], opts).set_requires_grad(true);
-            heads.forward(&task, &frames).poses.unwrap().sum(Kind::Float).backward();
+            heads.forward(&task, &frames, None).poses.unwrap().sum(Kind::Float).backward();
             let per_entry = frames.grad().abs().sum_dim_intlist([0i64, 1].as_slice(), false, Kind::Float);
             // An undefined gradient: nothing reached the task embedding.
             let task_grad = task.grad();

@@ -26,16 +26,17 @@ pub struct Losses {
 
 /// A policy architecture: how it is queried for actions and how it is trained.
 pub trait PolicyNet: std::fmt::Debug + Send {
-    /// Predictions for `context` `[B, Tc, 3, H, W]` and agent frames `[B, Ta, 3, H, W]`; agent frame t's outputs
-    /// depend only on the context and agent frames 0..=t.
-    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput;
+    /// Predictions for `context` `[B, Tc, 3, H, W]`, agent frames `[B, Ta, 3, H, W]` and the robot's state at
+    /// each `[B, Ta, STATE_DIM]` (read only by a network built with `model.concat_state`, which needs it); agent
+    /// frame t's outputs depend only on the context and agent frames (and states) 0..=t.
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, states: Option<&Tensor>, train: bool) -> PolicyOutput;
 
     /// Runs the image trunk on channels-last tensors (see [`super::resnet::ResNet18::set_channels_last`]).
     fn set_channels_last(&mut self, on: bool);
 
     /// The losses of `batch`; by default the NLL of every head [`Self::forward_t`] returns.
     fn losses(&self, batch: &DeviceBatch, spec: MixtureSpec, train: bool) -> Losses {
-        head_losses(&self.forward_t(&batch.context, &batch.agent, train), batch, spec)
+        head_losses(&self.forward_t(&batch.context, &batch.agent, Some(&batch.states), train), batch, spec)
     }
 
     /// The grasp and drop positions `[B, 6]` (metres) predicted from the context and each episode's first agent
@@ -103,9 +104,14 @@ impl Policy {
         self.registration
     }
 
-    /// See [`PolicyNet::forward_t`].
+    /// See [`PolicyNet::forward_t`], without states (a network built with `model.concat_state` panics).
     pub fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
-        self.net.forward_t(context, agent, train)
+        self.net.forward_t(context, agent, None, train)
+    }
+
+    /// See [`PolicyNet::forward_t`].
+    pub fn forward_with_states(&self, context: &Tensor, agent: &Tensor, states: &Tensor, train: bool) -> PolicyOutput {
+        self.net.forward_t(context, agent, Some(states), train)
     }
 
     /// See [`PolicyNet::predict_poses`].

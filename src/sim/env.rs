@@ -144,6 +144,21 @@ impl WorldConfig {
     }
 }
 
+/// Entries of the agent's own state as a network reads it ([`robot_state`]).
+pub const STATE_DIM: usize = 9;
+
+/// The robot's own state as a network reads it (`model.concat_state`, the authors' `ee_aa` and `gripper_qpos`):
+/// the end-effector position (metres), its orientation (angle / pi, axis) and the two finger joints in units of
+/// their full opening (the Panda's 0.04 m), so that every entry is of order one.
+pub fn robot_state(eef_pos: [f64; 3], eef_rot: [f64; 4], fingers: [f64; 2]) -> [f32; STATE_DIM] {
+    const FULL_OPENING: f64 = 0.04;
+    let mut s = [0.0f32; STATE_DIM];
+    for (out, v) in s.iter_mut().zip(eef_pos.iter().chain(&eef_rot).copied().chain(fingers.map(|f| f / FULL_OPENING))) {
+        *out = v as f32;
+    }
+    s
+}
+
 /// What the robot senses at one step (privileged object state included).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Observation {
@@ -158,6 +173,13 @@ pub struct Observation {
     /// Pose (x, y, z, qw, qx, qy, qz) of each object, in `Object::ALL` order.
     pub object_poses: [[f64; 7]; NUM_OBJECTS],
     pub milestones: Milestones,
+}
+
+impl Observation {
+    /// The robot's own state as a network reads it.
+    pub fn robot_state(&self) -> [f32; STATE_DIM] {
+        robot_state(self.eef_pos, self.eef_rot, self.gripper_qpos)
+    }
 }
 
 /// A simulated robot in the bins scene.

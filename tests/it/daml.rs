@@ -73,13 +73,13 @@ fn tasks_are_independent(trunk: TrunkKind) {
     let vs = nn::VarStore::new(Device::Cpu);
     let daml = Daml::new(&vs.root(), &tiny(), trunk);
     let b = random_batch();
-    let together = daml.forward_t(&b.context, &b.agent, false).actions;
-    let alone = daml.forward_t(&b.context.narrow(0, 0, 1), &b.agent.narrow(0, 0, 1), false).actions;
+    let together = daml.forward_t(&b.context, &b.agent, None, false).actions;
+    let alone = daml.forward_t(&b.context.narrow(0, 0, 1), &b.agent.narrow(0, 0, 1), None, false).actions;
     let gap = (together.means.narrow(0, 0, 1) - &alone.means).abs().max().double_value(&[]);
     // Grouped and single-group convolutions round differently (about 1e-5 after the inner step); a leak between
     // tasks would move the actions by orders of magnitude more.
     assert!(gap < 1e-4, "{trunk:?}: task 0's actions depend on task 1 (largest difference {gap})");
-    let other = daml.forward_t(&b.context.narrow(0, 1, 1), &b.agent.narrow(0, 0, 1), false).actions;
+    let other = daml.forward_t(&b.context.narrow(0, 1, 1), &b.agent.narrow(0, 0, 1), None, false).actions;
     let gap = (other.means - &alone.means).abs().max().double_value(&[]);
     assert!(gap > 1e-3, "{trunk:?}: another demonstration changes the actions (by {gap}), well beyond rounding");
 }
@@ -148,7 +148,7 @@ fn the_resnet_trunk_updates_its_batch_norm_statistics_in_training_only() {
     let statistic = || vs.variables()["backbone.layer1.0.bn1.running_mean"].copy();
     let before = statistic();
     let b = random_batch();
-    let _ = daml.forward_t(&b.context, &b.agent, false);
+    let _ = daml.forward_t(&b.context, &b.agent, None, false);
     assert!(before.equal(&statistic()), "evaluation leaves the running statistics alone");
     let _ = daml.losses(&b, MixtureSpec::for_model(&config), true);
     let moved = (statistic() - &before).abs().max().double_value(&[]);

@@ -308,6 +308,10 @@ fn multi_object_collections_lay_out_training_objects_and_pair_within_an_environm
             assert_eq!(env(Robot::Sawyer, demo), env(Robot::Panda, agent));
             assert_eq!((demo.meta.task, agent.meta.task), (s.task, s.task));
             assert_eq!(env(Robot::Panda, agent) == 2, split == Split::Val);
+            // Each agent frame comes with the robot's state when it was seen: the fingers open at the start.
+            let states: Vec<f32> = (0..model.agent_frames).flat_map(|t| agent.robot_state(s.start + t)).collect();
+            assert_eq!(s.states, states);
+            assert!((agent.robot_state(0)[7] - 1.0).abs() < 0.05, "open fingers read as 1: {:?}", agent.robot_state(0));
         }
     }
     std::fs::remove_dir_all(&dir).unwrap();

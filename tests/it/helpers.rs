@@ -1,6 +1,7 @@
 //! What the test modules share: the binary under test, scratch folders, the lock on libtorch's global random
 //! generator, a random training batch, and waiting on what a run in another process does.
 use oneshot_lab::model::batch::DeviceBatch;
+use oneshot_lab::sim::env::STATE_DIM;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::{Mutex, MutexGuard};
@@ -78,5 +79,6 @@ pub fn random_batch() -> DeviceBatch {
         poses: Tensor::rand([2, 6], opts),
         pose_weights: Tensor::ones([2, 7], opts),
         tasks: Tensor::from_slice(&[3i64, 12]),
+        states: Tensor::zeros([2, 7, STATE_DIM as i64], opts),
     }
 }

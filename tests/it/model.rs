@@ -6,6 +6,7 @@ use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig, TaskPass};
 use oneshot_lab::model::policy::{Losses, Policy};
 use oneshot_lab::model::resnet::ResNet18;
+use oneshot_lab::sim::env::STATE_DIM;
 use oneshot_lab::train::adam::Adam;
 use oneshot_lab::train::config::{LossWeights, TrainConfig, check_heads};
 use oneshot_lab::train::{build_policy, checkpoint};
@@ -30,6 +31,7 @@ fn batch(context: Tensor, agent: Tensor, tasks: [i64; 2]) -> DeviceBatch {
         poses: Tensor::rand([2, 6], (Kind::Float, Device::Cpu)),
         pose_weights: Tensor::ones([2, frames], (Kind::Float, Device::Cpu)),
         tasks: Tensor::from_slice(&tasks),
+        states: Tensor::zeros([2, frames, STATE_DIM as i64], (Kind::Float, Device::Cpu)),
     }
 }
 
@@ -480,4 +482,44 @@ fn bad_training_files_name_the_key() {
     let err = format!("{:#}", CellConfig::load(&dir.join("bad.toml")).unwrap_err());
     assert!(err.contains("line 3"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn with_concat_state_the_action_reads_the_robots_state_at_its_own_frame() {
+    let _rng = seeded(4);
+    let model = ModelConfig { concat_state: true, ..tiny() };
+    let (vs, policy) = build_policy(&model, Device::Cpu).unwrap();
+    let (context, agent) = (images(2, 4), images(2, 7));
+    let states = Tensor::randn([2, 7, STATE_DIM as i64], (Kind::Float, Device::Cpu));
+    // Fingers closed at the last frame only: that frame's action moves, the earlier ones do not.
+    let closed = states.copy();
+    let _ = closed.narrow(1, 6, 1).narrow(2, 7, 2).fill_(0.0);
+    let a = policy.forward_with_states(&context, &agent, &states, false).actions.means;
+    let b = policy.forward_with_states(&context, &agent, &closed, false).actions.means;
+    assert!((a.narrow(1, 0, 6) - b.narrow(1, 0, 6)).abs().max().double_value(&[]) < 1e-6);
+    assert!((a.narrow(1, 6, 1) - b.narrow(1, 6, 1)).abs().max().double_value(&[]) > 1e-5);
+    // Two samples alike in every frame and action but the gripper command, which follows the fingers: only the
+    // state tells them apart, so only the model that reads it fits both (one that cannot pays ln 2 per command).
+    let alike = |t: Tensor| t.narrow(0, 0, 1).expand_as(&t).copy();
+    let mut fit = batch(alike(images(2, 4)), alike(images(2, 7)), [1, 1]);
+    fit.actions = alike(fit.actions);
+    let _ = fit.actions.narrow(2, 7, 1).get(0).fill_(1.0);
+    let _ = fit.actions.narrow(2, 7, 1).get(1).fill_(-1.0);
+    fit.states = Tensor::zeros([2, 7, STATE_DIM as i64], (Kind::Float, Device::Cpu));
+    let _ = fit.states.narrow(2, 7, 2).get(0).fill_(1.0);
+    let (_, with_state) = fitted(&vs, &policy, &fit, |l| l.bc);
+    let (vs_plain, plain) = build_policy(&tiny(), Device::Cpu).unwrap();
+    let (_, without) = fitted(&vs_plain, &plain, &fit, |l| l.bc);
+    assert!(without > 2f64.ln() / 8.0 - 0.01, "the plain model cannot tell the samples apart: {without}");
+    assert!(with_state < without - 0.03, "bc with the state {with_state}, without {without}");
+
+    // Without the key the state is ignored; the baselines without the paper's heads refuse it.
+    let c = (images(1, 4), images(1, 7));
+    let s = Tensor::randn([1, 7, STATE_DIM as i64], (Kind::Float, Device::Cpu));
+    let with = plain.forward_with_states(&c.0, &c.1, &s, false).actions.means;
+    assert!(with.equal(&plain.forward_t(&c.0, &c.1, false).actions.means));
+    for name in ["contextual_lstm", "daml"] {
+        let err = ModelConfig { architecture: Architecture::named(name), ..model.clone() }.validate().unwrap_err();
+        assert!(err.to_string().contains("model.concat_state") && err.to_string().contains(name), "{err}");
+    }
 }

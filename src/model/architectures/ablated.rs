@@ -204,7 +204,7 @@ impl PolicyNet for AblatedPolicy {
         }
     }
 
-    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, states: Option<&Tensor>, train: bool) -> PolicyOutput {
         let (b, tc, ta) = (context.size()[0], context.size()[1], agent.size()[1]);
         let feats = self.features(&Tensor::cat(&[context, agent], 1), train);
         let task = self.to_task.forward(&feats.narrow(1, 0, tc + 1).reshape([b, -1]));
@@ -213,6 +213,6 @@ impl PolicyNet for AblatedPolicy {
             // In fp32 under bf16 autocast too (see `full_precision`).
             latents = full_precision(|| lstm.seq(&latents.to_kind(Kind::Float)).0);
         }
-        self.heads.forward(&task, &latents.narrow(1, tc, ta))
+        self.heads.forward(&task, &latents.narrow(1, tc, ta), states)
     }
 }

@@ -181,7 +181,7 @@ impl Daml {
 }
 
 impl PolicyNet for Daml {
-    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, _states: Option<&Tensor>, train: bool) -> PolicyOutput {
         PolicyOutput {
             actions: self.batch_outputs(context, agent, train).0,
             inverse: None,

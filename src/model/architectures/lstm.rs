@@ -71,7 +71,7 @@ impl PolicyNet for ContextualLstm {
         self.trunk.set_channels_last(on)
     }
 
-    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, _states: Option<&Tensor>, train: bool) -> PolicyOutput {
         let (tc, ta) = (context.size()[1], agent.size()[1]);
         let context_frames = self.embed_frames(context, train);
         let frames = self.embed_frames(agent, train);

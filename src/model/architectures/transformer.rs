@@ -164,7 +164,7 @@ impl PolicyNet for TransformerPolicy {
         }
     }
 
-    fn forward_t(&self, context: &Tensor, agent: &Tensor, train: bool) -> PolicyOutput {
+    fn forward_t(&self, context: &Tensor, agent: &Tensor, states: Option<&Tensor>, train: bool) -> PolicyOutput {
         let tc = context.size()[1];
         let ta = agent.size()[1];
         let feats = self.features(&Tensor::cat(&[context, agent], 1), train);
@@ -212,7 +212,7 @@ impl PolicyNet for TransformerPolicy {
             }
             None => e,
         };
-        self.heads.forward(&task, &e)
+        self.heads.forward(&task, &e, states)
     }
 }
 
