@@ -44,6 +44,10 @@ pub fn print_summary(s: &EvalSummary) {
             100.0 * h.opened,
             100.0 * h.lifted
         );
+        println!(
+            "  of the {} that held it and did not pick it: let go before rising {}, rose closed without it {}",
+            h.lost, h.let_go, h.slipped
+        );
     }
 }
 

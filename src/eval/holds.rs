@@ -8,10 +8,14 @@ use serde::{Deserialize, Serialize};
 /// Fingers further apart than this after a close have stopped on something (metres; the Panda's open fingers
 /// are 0.08 apart, closed on air 0).
 const STOPPED_APART: f64 = 0.01;
-/// The object counts as between the fingers within the reach radius of the grip site across and sideways.
+/// The object counts as between the fingers within the reach radius of the grip site across and sideways ...
 const BETWEEN: f64 = 0.03;
+/// ... and at most this far beyond it along the fingers (the expert's grips hold it 2-3 cm beyond).
+const ALONG: f64 = 0.06;
 /// A command that targets the gripper this much higher than it is asks for a lift (metres).
 const LIFT: f64 = 0.05;
+/// The gripper has risen from a hold once it is this much higher (metres).
+const RISEN: f64 = 0.04;
 
 /// Steps at which the gripper held the object on the table, and what the next command did.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -24,17 +28,24 @@ pub struct HoldSummary {
     pub opened: f64,
     /// Fraction of them whose next command targeted a lift.
     pub lifted: f64,
+    /// Episodes that held the object but never picked it ...
+    pub lost: usize,
+    /// ... of which the gripper opened before it rose from the first hold ...
+    pub let_go: usize,
+    /// ... or rose closed with the object no longer between the fingers.
+    pub slipped: usize,
+}
+
+/// Whether after `s` the task's object lies between the fingers.
+fn between(s: &TraceStep) -> bool {
+    let [x, y, z] = s.object_in_gripper;
+    x.abs() < BETWEEN && y.abs() < BETWEEN && z < ALONG
 }
 
 /// Whether after `s` the gripper, commanded closed, holds the task's object that still lies on the table: the
 /// fingers stopped apart and the object between them.
 fn holding(s: &TraceStep) -> bool {
-    let [x, y, _] = s.object_in_gripper;
-    s.action[7] > 0.0
-        && s.fingers[0] - s.fingers[1] > STOPPED_APART
-        && x.abs() < BETWEEN
-        && y.abs() < BETWEEN
-        && !s.picked
+    s.action[7] > 0.0 && s.fingers[0] - s.fingers[1] > STOPPED_APART && between(s) && !s.picked
 }
 
 impl HoldSummary {
@@ -44,21 +55,32 @@ impl HoldSummary {
             return None;
         }
         let (mut episodes, mut steps, mut opened, mut lifted) = (0, 0, 0, 0);
+        let (mut lost, mut let_go, mut slipped) = (0, 0, 0);
         for trace in traces {
-            let mut held = false;
             for pair in trace.steps.windows(2) {
                 let (now, next) = (&pair[0], &pair[1]);
                 if holding(now) {
-                    held = true;
                     steps += 1;
                     opened += usize::from(next.action[7] <= 0.0);
                     lifted += usize::from(next.action[2] > now.gripper_pos[2] + LIFT);
                 }
             }
-            episodes += usize::from(held);
+            let Some(first) = trace.steps.iter().position(holding) else { continue };
+            episodes += 1;
+            if trace.steps.iter().any(|s| s.picked) {
+                continue;
+            }
+            lost += 1;
+            let bottom = trace.steps[first].gripper_pos[2];
+            let after = &trace.steps[first..];
+            let rise = after.iter().position(|s| s.gripper_pos[2] > bottom + RISEN).unwrap_or(after.len());
+            match after[..rise].iter().any(|s| s.action[7] <= 0.0) {
+                true => let_go += 1,
+                false => slipped += usize::from(after.get(rise).is_some_and(|s| !between(s))),
+            }
         }
         let share = |k: usize| if steps == 0 { 0.0 } else { k as f64 / steps as f64 };
-        Some(HoldSummary { episodes, steps, opened: share(opened), lifted: share(lifted) })
+        Some(HoldSummary { episodes, steps, opened: share(opened), lifted: share(lifted), lost, let_go, slipped })
     }
 }
 
@@ -102,6 +124,14 @@ mod tests {
         let s = HoldSummary::of(&traces).unwrap();
         assert_eq!((s.episodes, s.steps), (2, 3));
         assert_eq!((s.opened, s.lifted), (1.0 / 3.0, 1.0 / 3.0));
+        // Neither held episode picked: the second let go; the first never rose.
+        assert_eq!((s.lost, s.let_go, s.slipped), (2, 1, 0));
+        let mut rose = vec![step(true, 0.05, on, 0.85, 0.85), step(true, 0.05, on, 1.0, 0.85)];
+        rose.push(step(true, 0.0, [0.0, 0.0, 0.12], 1.0, 0.95));
+        let s = HoldSummary::of(&[trace(rose.clone())]).unwrap();
+        assert_eq!((s.lost, s.let_go, s.slipped), (1, 0, 1), "rose closed, the object left on the table");
+        rose.last_mut().unwrap().picked = true;
+        assert_eq!(HoldSummary::of(&[trace(rose)]).unwrap().lost, 0, "a picked episode is not lost");
         assert_eq!(HoldSummary::of(&[]), None);
     }
 }
