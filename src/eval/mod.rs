@@ -72,7 +72,7 @@ pub struct TraceStep {
     pub action: [f64; ACTION_DIM],
     /// The gripper's position afterwards (world, metres).
     pub gripper_pos: [f64; 3],
-    /// The fingers' joint positions afterwards (metres; the Panda's are 0.04 each fully open).
+    /// The fingers' joint positions afterwards (metres; the Panda's are +0.04 and -0.04 fully open, 0 closed).
     pub fingers: [f64; 2],
     /// The task's object in the gripper's frame afterwards (x across the fingers, z along them), metres.
     pub object_in_gripper: [f64; 3],

@@ -20,9 +20,8 @@ pub const TRACES_FILE: &str = "traces.jsonl";
 pub const VIDEOS_DIR: &str = "videos";
 
 /// Runs the evaluation of `policy` and, with `out`, writes the episodes, the summary, strips, videos and (with
-/// `eval.traces`) every episode's steps there. A
-/// trained policy runs in the world it was trained in; `world`, if given, must be that world (reference policies
-/// run in `world` or the default world).
+/// `eval.traces`) every episode's steps there. A trained policy runs in the world it was trained in; `world`, if
+/// given, must be that world (reference policies run in `world` or the default world).
 pub fn run_eval(
     policy: &ActorFiles,
     world: Option<&WorldConfig>,

@@ -78,7 +78,8 @@ pub enum ObjectAttentionQuery {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum PoseHeadInput {
-    /// The task embedding and each frame's features, as the action head reads them.
+    /// The task embedding and each frame's features (and the robot's state, with `model.concat_state`), as the
+    /// action head reads them.
     #[default]
     Joint,
     /// The task embedding, detached, and the object attention's positions alone: the pose loss then trains the
@@ -200,8 +201,9 @@ pub struct ModelConfig {
     /// What the object attention queries with: `embedding` (the task embedding) or `task_head` (the task head's
     /// predicted distribution, detached; needs `task_head`). Only with `object_attention`.
     pub object_attention_query: ObjectAttentionQuery,
-    /// What the pose head reads: `joint` (the task embedding and the frame's features) or `object` (the task
-    /// embedding, detached, and the object attention's positions; needs `pose_head` and `object_attention`).
+    /// What the pose head reads: `joint` (what the action is read from: the task embedding, the frame's features
+    /// and, with `concat_state`, the robot's state) or `object` (the task embedding, detached, and the object
+    /// attention's positions; needs `pose_head` and `object_attention`).
     pub pose_head_input: PoseHeadInput,
     /// The robot's own state (end-effector position and orientation, finger joints: the authors' `ee_aa` and
     /// `gripper_qpos`) joined to each agent frame's embedding where the action is read, as the authors'

@@ -148,8 +148,8 @@ impl WorldConfig {
 pub const STATE_DIM: usize = 9;
 
 /// The robot's own state as a network reads it (`model.concat_state`, the authors' `ee_aa` and `gripper_qpos`):
-/// the end-effector position (metres), its orientation (angle / pi, axis) and the two finger joints in units of
-/// their full opening (the Panda's 0.04 m), so that every entry is of order one.
+/// the end-effector position (metres), its orientation (angle / pi, axis) and the two finger joints divided by
+/// their travel (the Panda's run 0..0.04 and -0.04..0 m), so that every entry is of order one.
 pub fn robot_state(eef_pos: [f64; 3], eef_rot: [f64; 4], fingers: [f64; 2]) -> [f32; STATE_DIM] {
     const FULL_OPENING: f64 = 0.04;
     let mut s = [0.0f32; STATE_DIM];

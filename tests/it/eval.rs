@@ -62,7 +62,7 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     tch::manual_seed(5);
     let (vs, _) = build_policy(&model, tch::Device::Cpu).unwrap();
     checkpoint::save(&vs, &dir.join(FINAL_WEIGHTS)).unwrap();
-    let summary = TrainSummary::untrained(model, world(), 90);
+    let summary = TrainSummary::untrained(model.clone(), world(), 90);
     std::fs::write(dir.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
     let policy = Actor::Network(Weights { at: dir.clone(), step: None });
     let none = HashSet::new();
@@ -70,7 +70,20 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     let (b, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 1, None).unwrap();
     assert_eq!(a, b);
     assert!(a.iter().all(|e| e.steps == 8 || e.placed));
+    // A network that reads the robot's state runs on the state observed with each frame, as reproducibly.
+    let stated = scratch("eval-repeat-state");
+    let model = ModelConfig { concat_state: true, ..model };
+    let (vs, _) = build_policy(&model, tch::Device::Cpu).unwrap();
+    checkpoint::save(&vs, &stated.join(FINAL_WEIGHTS)).unwrap();
+    let summary = TrainSummary::untrained(model, world(), 90);
+    std::fs::write(stated.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
+    let policy = Actor::Network(Weights { at: stated.clone(), step: None });
+    let (c, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 2, None).unwrap();
+    let (d, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 1, None).unwrap();
+    assert_eq!(c, d);
+    assert!(c.iter().all(|e| e.steps == 8 || e.placed));
     std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(&stated).unwrap();
 }
 
 #[test]
