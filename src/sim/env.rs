@@ -8,7 +8,7 @@ use super::ik::IkSolver;
 use super::milestones::{MilestoneInputs, Milestones};
 use super::object::{Object, Split, environment_objects};
 use super::robot::Robot;
-use super::rotation::{downward, from_angle_axis, mat_from_mj, to_angle_axis, yaw_of};
+use super::rotation::{downward, from_angle_axis, mat_from_mj, state_angle_axis, to_angle_axis, yaw_of};
 use super::scene::build_model;
 use super::task::{Instance, NUM_OBJECTS, NUM_TARGETS, in_quadrant};
 use anyhow::{Result, bail};
@@ -147,13 +147,22 @@ impl WorldConfig {
 /// Entries of the agent's own state as a network reads it ([`robot_state`]).
 pub const STATE_DIM: usize = 9;
 
+/// Version of [`robot_state`]'s encoding, part of the key of every training that reads it (2: the orientation
+/// in the authors' continuous form, [`state_angle_axis`]).
+pub const STATE_VERSION: u32 = 2;
+
 /// The robot's own state as a network reads it (`model.concat_state`, the authors' `ee_aa` and `gripper_qpos`):
-/// the end-effector position (metres), its orientation (angle / pi, axis) and the two finger joints divided by
-/// their travel (the Panda's run 0..0.04 and -0.04..0 m), so that every entry is of order one.
+/// the end-effector position (metres), its orientation (`eef_rot` in the action's form, read in the authors'
+/// continuous form: angle / pi, axis) and the two finger joints divided by their travel (the Panda's run 0..0.04
+/// and -0.04..0 m), so that every entry is of order one.
 pub fn robot_state(eef_pos: [f64; 3], eef_rot: [f64; 4], fingers: [f64; 2]) -> [f32; STATE_DIM] {
     const FULL_OPENING: f64 = 0.04;
+    let (angle, axis) = state_angle_axis(eef_rot[0], [eef_rot[1], eef_rot[2], eef_rot[3]]);
+    let orientation = [angle, axis[0], axis[1], axis[2]];
     let mut s = [0.0f32; STATE_DIM];
-    for (out, v) in s.iter_mut().zip(eef_pos.iter().chain(&eef_rot).copied().chain(fingers.map(|f| f / FULL_OPENING))) {
+    for (out, v) in
+        s.iter_mut().zip(eef_pos.iter().chain(&orientation).copied().chain(fingers.map(|f| f / FULL_OPENING)))
+    {
         *out = v as f32;
     }
     s

@@ -47,6 +47,23 @@ pub fn from_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> Matrix3<f64> {
     Rotation3::from_axis_angle(&Unit::new_normalize(v), angle_over_pi * std::f64::consts::PI).into_inner()
 }
 
+/// The authors' state form of an orientation given in the action's form: (angle / pi in [0, 2], unit axis) of the
+/// quaternion on the side of the gripper pointing straight down (a half turn about +y). The authors read it from
+/// MuJoCo's hand quaternion, which moves continuously with the joints; the action's form flips its axis near a
+/// half turn, where the gripper always is, so the state must not use it as it is.
+pub fn state_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> (f64, [f64; 3]) {
+    let half = angle_over_pi * std::f64::consts::PI / 2.0;
+    let (mut w, mut v) = (half.cos(), Vector3::from(axis).normalize() * half.sin());
+    if v[1] < 0.0 {
+        (w, v) = (-w, -v);
+    }
+    let norm = v.norm();
+    if norm < 1e-12 {
+        return (0.0, [0.0, 0.0, 1.0]);
+    }
+    (2.0 * norm.atan2(w) / std::f64::consts::PI, [v[0] / norm, v[1] / norm, v[2] / norm])
+}
+
 /// Rotation vector (axis * angle) taking `from` to `to`, expressed in the world frame.
 pub fn rotation_error(to: &Matrix3<f64>, from: &Matrix3<f64>) -> Vector3<f64> {
     let rel = Rotation3::from_matrix_unchecked(to * from.transpose());
@@ -82,6 +99,25 @@ mod tests {
         let r = Rotation3::from_euler_angles(0.3, -0.2, 0.9).into_inner();
         let (a, axis) = to_angle_axis(&r);
         assert!((from_angle_axis(a, axis) - r).norm() < 1e-9);
+    }
+
+    #[test]
+    fn state_form_is_continuous_where_the_action_form_flips() {
+        // A gripper turned back and forth about its half-turn axis by a hundredth of a radian: the action's form
+        // flips its axis where the turn passes pi.
+        let tilt = |e: f64| downward(0.0) * Rotation3::from_axis_angle(&Vector3::y_axis(), e).into_inner();
+        let state = |e: f64| {
+            let (a, axis) = to_angle_axis(&tilt(e));
+            let (sa, saxis) = state_angle_axis(a, axis);
+            assert!((from_angle_axis(sa, saxis) - tilt(e)).norm() < 1e-9, "same rotation at {e}");
+            (a, axis, sa, saxis)
+        };
+        let (_, axis_p, sa_p, saxis_p) = state(0.01);
+        let (_, axis_m, sa_m, saxis_m) = state(-0.01);
+        let jump = |p: [f64; 3], m: [f64; 3]| p.iter().zip(m).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+        assert!(jump(axis_p, axis_m) > 1.0, "the action's form flips: {axis_p:?} {axis_m:?}");
+        assert!(jump(saxis_p, saxis_m) < 0.02 && (sa_p - sa_m).abs() < 0.02, "{sa_p} {saxis_p:?} {sa_m} {saxis_m:?}");
+        assert!(sa_p > 1.0 || sa_m > 1.0, "past a half turn the angle goes on above pi");
     }
 
     #[test]

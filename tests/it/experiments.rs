@@ -162,6 +162,10 @@ fn settings_added_after_keys_existed_stay_out_of_them_at_their_first_value() {
     assert_eq!(train("")["action_resolution"], 128);
     assert!(train("[train]\naction_resolution = 0\n").get("action_resolution").is_none());
     assert_eq!(model("[model]\nobject_attention = true\n")["object_attention"], true);
+    // Trainings that read the robot's state are keyed by its encoding; the others are not.
+    let inputs = |extra: &str| stage_inputs(extra, |c| c.train.clone());
+    assert!(inputs("").get("state_version").is_none());
+    assert_eq!(inputs("[model]\nconcat_state = true\n")["state_version"], oneshot_lab::sim::env::STATE_VERSION);
     let world = |extra: &str| stage_inputs(extra, |c| c.collect_agent.clone())["world"].clone();
     assert!(world("").get("close_on_arrival").is_none());
     assert_eq!(world("[world]\nclose_on_arrival = true\n")["close_on_arrival"], true);

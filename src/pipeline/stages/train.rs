@@ -4,6 +4,7 @@ use crate::config::CellConfig;
 use crate::model::config::ModelConfig;
 use crate::pipeline::graph::Plan;
 use crate::pipeline::key::omit_when;
+use crate::sim::env::STATE_VERSION;
 use crate::train::config::{AUTHORS_WINDOW_START, TrainConfig};
 use crate::train::{CURVE_FILE, TrainRun, curve, train};
 use anyhow::Result;
@@ -60,10 +61,13 @@ fn neutral() -> [(&'static str, Value); 15] {
 }
 
 /// What a training's key is made of besides its upstream stages: the model and the training settings that
-/// change results.
+/// change results, and how the robot's state is encoded where the network reads it.
 fn key_inputs(cell: &CellConfig) -> Value {
     let mut inputs = json!({ "model": cell.model, "train": identity(&cell.train) });
     omit_when(&mut inputs, &neutral());
+    if cell.model.concat_state {
+        inputs["state_version"] = STATE_VERSION.into();
+    }
     inputs
 }
 
