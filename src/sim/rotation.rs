@@ -52,8 +52,11 @@ pub fn from_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> Matrix3<f64> {
 /// MuJoCo's hand quaternion, which moves continuously with the joints; the action's form flips its axis near a
 /// half turn, where the gripper always is, so the state must not use it as it is.
 pub fn state_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> (f64, [f64; 3]) {
+    let Some(unit) = Vector3::from(axis).try_normalize(1e-12) else {
+        return (0.0, [0.0, 0.0, 1.0]);
+    };
     let half = angle_over_pi * std::f64::consts::PI / 2.0;
-    let (mut w, mut v) = (half.cos(), Vector3::from(axis).normalize() * half.sin());
+    let (mut w, mut v) = (half.cos(), unit * half.sin());
     if v[1] < 0.0 {
         (w, v) = (-w, -v);
     }
@@ -118,6 +121,7 @@ mod tests {
         assert!(jump(axis_p, axis_m) > 1.0, "the action's form flips: {axis_p:?} {axis_m:?}");
         assert!(jump(saxis_p, saxis_m) < 0.02 && (sa_p - sa_m).abs() < 0.02, "{sa_p} {saxis_p:?} {sa_m} {saxis_m:?}");
         assert!(sa_p > 1.0 || sa_m > 1.0, "past a half turn the angle goes on above pi");
+        assert_eq!(state_angle_axis(0.0, [0.0; 3]), (0.0, [0.0, 0.0, 1.0]), "no rotation, whatever the axis");
     }
 
     #[test]
