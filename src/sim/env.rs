@@ -148,7 +148,7 @@ impl WorldConfig {
 pub const STATE_DIM: usize = 9;
 
 /// Version of [`robot_state`]'s encoding, part of the key of every training that reads it (2: the orientation
-/// in the authors' continuous form, [`state_angle_axis`]).
+/// continuous, in the authors' range: [`state_angle_axis`]).
 pub const STATE_VERSION: u32 = 2;
 
 /// The robot's own state as a network reads it (`model.concat_state`, the authors' `ee_aa` and `gripper_qpos`):

@@ -47,10 +47,10 @@ pub fn from_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> Matrix3<f64> {
     Rotation3::from_axis_angle(&Unit::new_normalize(v), angle_over_pi * std::f64::consts::PI).into_inner()
 }
 
-/// The authors' state form of an orientation given in the action's form: (angle / pi in [0, 2], unit axis) of the
-/// quaternion on the side of the gripper pointing straight down (a half turn about +y). The authors read it from
-/// MuJoCo's hand quaternion, which moves continuously with the joints; the action's form flips its axis near a
-/// half turn, where the gripper always is, so the state must not use it as it is.
+/// The state's form of an orientation given in the action's form: (angle / pi in [0, 2], unit axis) of the
+/// quaternion on the side of the gripper pointing straight down (a half turn about +y). The authors read theirs,
+/// in the same range, from MuJoCo's hand quaternion, which moves continuously with the joints; the action's form
+/// flips its axis near a half turn, where the gripper always is, so the state must not use it as it is.
 pub fn state_angle_axis(angle_over_pi: f64, axis: [f64; 3]) -> (f64, [f64; 3]) {
     let Some(unit) = Vector3::from(axis).try_normalize(1e-12) else {
         return (0.0, [0.0, 0.0, 1.0]);
