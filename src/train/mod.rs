@@ -16,7 +16,7 @@ use crate::model::batch::DeviceBatch;
 use crate::model::config::{ModelConfig, ObjectAttentionInput};
 use crate::model::policy::{Losses, Policy};
 use crate::seeds::derive_seed;
-use crate::sim::env::WorldConfig;
+use crate::sim::env::{STATE_VERSION, WorldConfig};
 use adam::Adam;
 use anyhow::{Context, Result, bail};
 use config::{LossWeights, TrainConfig};
@@ -48,6 +48,10 @@ pub struct TrainSummary {
     pub final_val_bc: f64,
     pub seconds: f64,
     pub parameters: i64,
+    /// How the robot's state was encoded ([`STATE_VERSION`]), for a network that reads it; absent in trainings
+    /// written before it was recorded, which cannot be checked.
+    #[serde(default)]
+    pub state_version: Option<u32>,
 }
 
 impl TrainSummary {
@@ -64,6 +68,7 @@ impl TrainSummary {
             final_val_bc: 0.0,
             seconds: 0.0,
             parameters: 0,
+            state_version: Some(STATE_VERSION),
         }
     }
 }
@@ -129,6 +134,16 @@ pub fn load_trained(dir: &Path, step: Option<u64>, device: tch::Device) -> Resul
     let summary: TrainSummary = serde_json::from_str(&text).with_context(|| {
         format!("parsing {} (a model trained by an older version records no world: train it again)", info.display())
     })?;
+    if let Some(version) = summary.state_version
+        && summary.model.concat_state
+        && version != STATE_VERSION
+    {
+        bail!(
+            "{} was trained on the robot's state encoded as version {version}, and this build encodes it as version \
+             {STATE_VERSION}: the network would read other inputs than it learnt from; train it again",
+            info.display()
+        );
+    }
     let model = ModelConfig { pretrained_backbone: None, ..summary.model.clone() };
     let (mut vars, policy) = build_policy(&model, device)?;
     let weights = match step {
@@ -302,6 +317,7 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
         final_val_bc: vals.last().copied().unwrap_or(f64::NAN),
         seconds: clock.elapsed().as_secs_f64(),
         parameters: vs.trainable_variables().iter().map(|t| t.numel() as i64).sum(),
+        state_version: Some(STATE_VERSION),
     };
     let info = run.out.join(FINAL_INFO);
     std::fs::write(&info, serde_json::to_string_pretty(&summary)? + "\n")

@@ -6,9 +6,9 @@ use oneshot_lab::eval::run::run_eval;
 use oneshot_lab::eval::{Actor, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::ImageSize;
-use oneshot_lab::sim::env::{ObjectSet, WorldConfig};
+use oneshot_lab::sim::env::{ObjectSet, STATE_VERSION, WorldConfig};
 use oneshot_lab::sim::object::Object;
-use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint};
+use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained};
 use std::collections::HashSet;
 
 fn world() -> WorldConfig {
@@ -55,7 +55,7 @@ fn in_the_multi_object_world_the_expert_places_the_held_out_objects_in_their_own
 }
 
 #[test]
-fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
+fn the_same_checkpoint_seed_and_count_give_the_same_episodes_and_another_state_encoding_is_refused() {
     let _rng = torch_rng();
     let dir = scratch("eval-repeat");
     let model = ModelConfig { backbone_width: 8, attention_inner: 16, embed_hidden: 32, ..ModelConfig::default() };
@@ -82,6 +82,12 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes() {
     let (d, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 1, None).unwrap();
     assert_eq!(c, d);
     assert!(c.iter().all(|e| e.steps == 8 || e.placed));
+    // One trained on another encoding of the state is refused, naming its file.
+    let mut summary: TrainSummary = serde_json::from_slice(&std::fs::read(stated.join(FINAL_INFO)).unwrap()).unwrap();
+    summary.state_version = Some(STATE_VERSION + 1);
+    std::fs::write(stated.join(FINAL_INFO), serde_json::to_string(&summary).unwrap()).unwrap();
+    let err = load_trained(&stated, None, tch::Device::Cpu).err().expect("another encoding is refused").to_string();
+    assert!(err.contains(FINAL_INFO) && err.contains(&format!("version {}", STATE_VERSION + 1)), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
     std::fs::remove_dir_all(&stated).unwrap();
 }
