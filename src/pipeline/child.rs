@@ -185,3 +185,26 @@ impl Executor for Processes {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::stages::MetricName;
+
+    #[test]
+    fn results_read_back_every_bit_of_a_float() {
+        // Without serde_json's exact float parsing this value came back one unit in the last place off, so an
+        // evaluation run in its own process recorded other numbers than the same evaluation run in the run's.
+        let root = std::env::temp_dir().join(format!("oneshot-child-results-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let value = 0.13709402414392421_f64;
+        let outputs = StageOutputs { metrics: vec![(MetricName::Reached, value)], ..StageOutputs::default() };
+        let dir = artifact_dir(&root, Kind::Eval, "k");
+        std::fs::create_dir_all(&dir).unwrap();
+        let text = serde_json::to_string(&JobResults { job: None, outputs }).unwrap();
+        std::fs::write(dir.join(RESULTS_FILE), text).unwrap();
+        let read = results_of(&root, Kind::Eval, "k", None).unwrap().expect("results of a local process");
+        assert_eq!(read.metrics[0].1.to_bits(), value.to_bits());
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}
