@@ -326,8 +326,11 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     let (file, store) = (dir.join("tiny.toml"), dir.join("runs"));
     std::fs::write(&file, experiment("[0, 1]", 90, 400)).unwrap();
     let args = ["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1", "--jobs", "2"];
+    // One libtorch thread per stage process, as the guide runs two stages side by side: two processes of two
+    // spinning threads each on a 2-core machine took this test's last run from minutes to a quarter of an hour.
     let start = || {
         oneshot()
+            .env("OMP_NUM_THREADS", "1")
             .args(args)
             .args(["--only", "n32-full-*"])
             .stdout(std::process::Stdio::null())
@@ -386,7 +389,7 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     });
 
     // The next run resumes both trainings from their checkpoints and finishes.
-    let out = oneshot().args(args).args(["--only", "n32-full-*"]).output().unwrap();
+    let out = oneshot().env("OMP_NUM_THREADS", "1").args(args).args(["--only", "n32-full-*"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE kind = 'train' AND status = 'done'"), 2);
     assert_eq!(count(&conn, "SELECT COUNT(*) FROM stages WHERE status = 'running'"), 0);
