@@ -55,8 +55,21 @@ fn collect_draws_its_layouts_as_told_and_refuses_a_pool_without_sharing() {
     let dir = scratch("cli-collect-layouts");
     let args = |out: &str, layouts: &str, pool: &str| {
         let out = dir.join(out);
-        let base =
-            ["collect", "--robot", "panda", "--tasks", "0,5", "--per-task", "2", "--height", "32", "--width", "40"];
+        let base = [
+            "collect",
+            "--robot",
+            "panda",
+            "--tasks",
+            "0,5",
+            "--per-task",
+            "2",
+            "--height",
+            "32",
+            "--width",
+            "40",
+            "--visuals",
+            "collision",
+        ];
         let mut cmd = oneshot();
         cmd.args(base).args(["--layouts", layouts, "--layout-pool", pool, "--workers", "1", "--out"]).arg(out);
         cmd.output().unwrap()
@@ -78,7 +91,21 @@ fn collect_draws_its_layouts_as_told_and_refuses_a_pool_without_sharing() {
 #[test]
 fn collect_groups_library_slots_into_environments_and_refuses_a_pool_there() {
     let dir = scratch("cli-collect-library");
-    let base = ["collect", "--robot", "sawyer", "--tasks", "3", "--per-task", "3", "--height", "32", "--width", "40"];
+    let base = [
+        "collect",
+        "--robot",
+        "sawyer",
+        "--tasks",
+        "3",
+        "--per-task",
+        "3",
+        "--height",
+        "32",
+        "--width",
+        "40",
+        "--visuals",
+        "collision",
+    ];
     let library = ["--objects", "library", "--close-on-arrival", "--environment-instances", "2", "--workers", "1"];
     let out = oneshot().args(base).args(library).arg("--out").arg(dir.join("library")).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -266,7 +293,7 @@ fn refs_experiment(dir: &std::path::Path) -> std::path::PathBuf {
     let file = dir.join("refs.toml");
     std::fs::write(
         &file,
-        "name = \"refs\"\n[world.image]\nheight = 32\nwidth = 40\n[eval]\nepisodes = 2\nhorizon = 3\nbatch = 2\n\
+        "name = \"refs\"\n[world]\nvisuals = \"collision\"\n[world.image]\nheight = 32\nwidth = 40\n[eval]\nepisodes = 2\nhorizon = 3\nbatch = 2\n\
          [grid]\nsizes = []\nreferences = [\"random\"]\n",
     )
     .unwrap();

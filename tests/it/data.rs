@@ -5,12 +5,16 @@ use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSh
 use oneshot_lab::data::manifest::Manifest;
 use oneshot_lab::data::trajectory::Trajectory;
 use oneshot_lab::fsio::staging_sibling;
-use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::camera::{ImageSize, Visuals};
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
 
 fn tiny(robot: Robot, tasks: Vec<usize>, per_task: usize) -> CollectConfig {
-    let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
+    let world = WorldConfig {
+        image: ImageSize { height: 32, width: 40 },
+        visuals: Visuals::Collision,
+        ..WorldConfig::default()
+    };
     CollectConfig {
         per_task,
         world,
@@ -98,7 +102,7 @@ fn a_smaller_dataset_size_is_the_first_slots_of_each_task_of_the_larger_collecti
     use oneshot_lab::pipeline::stages::{Job, collection_totals, plan};
     let dir = scratch("data-nested");
     let file = dir.join("sizes.toml");
-    let text = "[world]\nimage = { height = 32, width = 40 }\n[collect]\ntasks = [0, 6]\n[grid]\nsizes = [4, 6]\n";
+    let text = "[world]\nimage = { height = 32, width = 40 }\nvisuals = \"collision\"\n[collect]\ntasks = [0, 6]\n[grid]\nsizes = [4, 6]\n";
     std::fs::write(&file, text).unwrap();
 
     // A size spreads over the collected tasks: 4 and 6 trajectories of 2 tasks are 2 and 3 slots per task.

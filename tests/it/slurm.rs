@@ -7,6 +7,8 @@ use std::process::{Command, Output};
 use std::time::Duration;
 
 const EXPERIMENT: &str = r#"name = "tiny_slurm"
+[world]
+visuals = "collision"
 [world.image]
 height = 32
 width = 40

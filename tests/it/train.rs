@@ -7,7 +7,7 @@ use oneshot_lab::data::pairs::{FrameForm, PairDataset, Split, Windows};
 use oneshot_lab::eval::probe::{PositionErrors, open_loop};
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
-use oneshot_lab::sim::camera::ImageSize;
+use oneshot_lab::sim::camera::{ImageSize, Visuals};
 use oneshot_lab::sim::env::WorldConfig;
 use oneshot_lab::sim::robot::Robot;
 use oneshot_lab::train::config::{LossWeights, TrainConfig};
@@ -22,7 +22,11 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
     let _rng = torch_rng();
     let dir = std::env::temp_dir().join(format!("oneshot-test-train-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
+    let world = WorldConfig {
+        image: ImageSize { height: 32, width: 40 },
+        visuals: Visuals::Collision,
+        ..WorldConfig::default()
+    };
     for robot in Robot::ALL {
         let config = CollectConfig {
             per_task: 4,
@@ -165,7 +169,11 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
 #[test]
 fn a_training_told_to_stop_by_signal_checkpoints_and_the_next_run_resumes_there() {
     let dir = crate::helpers::scratch("train-signal");
-    let world = WorldConfig { image: ImageSize { height: 32, width: 40 }, ..WorldConfig::default() };
+    let world = WorldConfig {
+        image: ImageSize { height: 32, width: 40 },
+        visuals: Visuals::Collision,
+        ..WorldConfig::default()
+    };
     for robot in Robot::ALL {
         // Each slot a layout of its own, so that validation (held out by layout) has some.
         let settings = CollectSettings { layouts: LayoutSharing::Unique, ..tasks(&[0, 6]) };
