@@ -1,6 +1,9 @@
 //! The command line's handling of bad input: one clear error line and a non-zero exit.
 use crate::helpers::{oneshot, scratch};
 
+/// 32x40 frames of collision geometry: rendered about five times faster than the visual meshes on Mesa.
+const SMALL_FRAMES: [&str; 6] = ["--height", "32", "--width", "40", "--visuals", "collision"];
+
 #[test]
 fn unknown_robot_is_an_error_naming_it() {
     let out = oneshot().args(["expert-check", "--robot", "ur5"]).output().unwrap();
@@ -55,23 +58,12 @@ fn collect_draws_its_layouts_as_told_and_refuses_a_pool_without_sharing() {
     let dir = scratch("cli-collect-layouts");
     let args = |out: &str, layouts: &str, pool: &str| {
         let out = dir.join(out);
-        let base = [
-            "collect",
-            "--robot",
-            "panda",
-            "--tasks",
-            "0,5",
-            "--per-task",
-            "2",
-            "--height",
-            "32",
-            "--width",
-            "40",
-            "--visuals",
-            "collision",
-        ];
+        let base = ["collect", "--robot", "panda", "--tasks", "0,5", "--per-task", "2"];
         let mut cmd = oneshot();
-        cmd.args(base).args(["--layouts", layouts, "--layout-pool", pool, "--workers", "1", "--out"]).arg(out);
+        cmd.args(base)
+            .args(SMALL_FRAMES)
+            .args(["--layouts", layouts, "--layout-pool", pool, "--workers", "1", "--out"])
+            .arg(out);
         cmd.output().unwrap()
     };
     // A pool of one environment: all four slots of both tasks draw it.
@@ -91,23 +83,10 @@ fn collect_draws_its_layouts_as_told_and_refuses_a_pool_without_sharing() {
 #[test]
 fn collect_groups_library_slots_into_environments_and_refuses_a_pool_there() {
     let dir = scratch("cli-collect-library");
-    let base = [
-        "collect",
-        "--robot",
-        "sawyer",
-        "--tasks",
-        "3",
-        "--per-task",
-        "3",
-        "--height",
-        "32",
-        "--width",
-        "40",
-        "--visuals",
-        "collision",
-    ];
+    let base = ["collect", "--robot", "sawyer", "--tasks", "3", "--per-task", "3"];
     let library = ["--objects", "library", "--close-on-arrival", "--environment-instances", "2", "--workers", "1"];
-    let out = oneshot().args(base).args(library).arg("--out").arg(dir.join("library")).output().unwrap();
+    let out =
+        oneshot().args(base).args(SMALL_FRAMES).args(library).arg("--out").arg(dir.join("library")).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let manifest: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("library").join("manifest.json")).unwrap()).unwrap();
@@ -115,7 +94,13 @@ fn collect_groups_library_slots_into_environments_and_refuses_a_pool_there() {
     let environments: Vec<_> =
         manifest["trajectories"].as_array().unwrap().iter().map(|e| e["environment"].as_u64()).collect();
     assert_eq!(environments, [Some(0), Some(0), Some(1)]);
-    let out = oneshot().args(base).args(library).args(["--layout-pool", "4", "--out"]).arg(dir.join("pool")).output();
+    let out = oneshot()
+        .args(base)
+        .args(SMALL_FRAMES)
+        .args(library)
+        .args(["--layout-pool", "4", "--out"])
+        .arg(dir.join("pool"))
+        .output();
     let out = out.unwrap();
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("collect.layout_pool"));
     assert!(!dir.join("pool").exists());
