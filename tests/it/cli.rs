@@ -1,7 +1,7 @@
 //! The command line's handling of bad input: one clear error line and a non-zero exit.
 use crate::helpers::{oneshot, scratch};
 
-/// 32x40 frames of collision geometry: rendered about five times faster than the visual meshes on Mesa.
+/// 32x40 frames of collision geometry: collected about four times faster than with the visual meshes on Mesa.
 const SMALL_FRAMES: [&str; 6] = ["--height", "32", "--width", "40", "--visuals", "collision"];
 
 #[test]

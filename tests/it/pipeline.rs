@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 use std::time::Duration;
 
-/// A tiny experiment: task 0 only, 32x40 frames of collision geometry (rendered about five times faster than the
-/// visual meshes), a narrow network, a few steps, two short episodes.
+/// A tiny experiment: task 0 only, 32x40 frames of collision geometry (collected about four times faster than with
+/// the visual meshes on Mesa: docs/benchmarks.md), a narrow network, a few steps, two short episodes.
 fn experiment(seeds: &str, jpeg_quality: u8, steps: u32) -> String {
     format!(
         r#"name = "tiny"
