@@ -15,7 +15,9 @@ smoke: build
 test: setup
 	cargo fmt --check
 	cargo clippy --release --all-targets -- -D warnings
-	# One test at a time: in the single integration binary, concurrent tests crashed (SIGSEGV) in a fresh-clone run.
-	cargo test --release -- --test-threads=1
+	cargo test --release --lib --bins -- --test-threads=1
+	cargo test --release --doc
+	# The integration tests: two processes side by side, one test at a time in each (the script says why).
+	bash scripts/integration-tests.sh
 	# The GPU proof's script, rehearsed on the CPU with tiny settings.
 	bash bench/gpu.sh --dry
