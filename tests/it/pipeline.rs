@@ -509,7 +509,7 @@ fn a_pretrained_object_attention_is_where_the_policys_attention_starts() {
         .replace("model.object_attention = true\n", "")
         .replace("model.object_attention_input = \"trunk\"\nmodel.object_attention_query = \"task_head\"\n", "");
     std::fs::write(&file, body + &plain).unwrap();
-    let out = oneshot().args(["plan", file.to_str().unwrap()]).output().unwrap();
+    let out = oneshot().args(["plan", file.to_str().unwrap(), "--store", store.to_str().unwrap()]).output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("pretrain.object_attention_steps"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
