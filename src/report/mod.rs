@@ -149,6 +149,18 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
                   that did not: what a failed grasp missed by.\n\n";
         index += &table;
     }
+    let mut per_task = Vec::with_capacity(rows.len());
+    for r in rows.iter().filter(|r| r.objects.as_deref() != Some("library")) {
+        per_task.push((r, store.task_counts(&r.eval_keys)?));
+    }
+    if per_task.iter().any(|(_, tasks)| !tasks.is_empty()) {
+        let table = tables::objects_markdown(&per_task)?;
+        write("objects.md", &table)?;
+        write("tasks.csv", &tables::tasks_csv(&per_task)?)?;
+        index += "\n## Success per object\n\nThe base world's episodes grouped by the object their task moves (its \
+                  four target quadrants pooled), picked and placed; counts per task in [tasks.csv](tasks.csv).\n\n";
+        index += &table;
+    }
     index += &videos::copy_and_list(store, &rows, &staging)?;
     index += "\n## Figures\n\n![success per configuration](success_by_configuration.png)\n\n";
     if architectures.len() > 1 {

@@ -2,7 +2,10 @@
 use super::data::{ResultRow, StepCurve};
 use super::paper::paper_stages;
 use crate::eval::grasps::{CloseOffsets, GraspSummary};
-use crate::eval::stats::Rate;
+use crate::eval::stats::{Counts, Rate, wilson};
+use crate::sim::object::Object;
+use crate::sim::task::Task;
+use anyhow::Result;
 
 const STAGES: [&str; 3] = ["reach", "pick", "place"];
 
@@ -104,6 +107,65 @@ pub fn grasps_markdown(rows: &[(&ResultRow, Option<GraspSummary>)]) -> String {
     s
 }
 
+/// Per-task counts pooled into per-object counts (the base world's four objects, in task order).
+fn per_object(tasks: &[(usize, Counts)]) -> Result<[Counts; 4]> {
+    let mut objects = [Counts::default(); 4];
+    for (id, c) in tasks {
+        let o = &mut objects[Task::from_id(*id)?.object];
+        *o = o.plus(c);
+    }
+    Ok(objects)
+}
+
+/// Markdown table of success per object of the base world, per row pooled over its seeds and the object's four
+/// target quadrants: picked %, then placed % with its 95% Wilson interval, of the episodes whose task moved that
+/// object (`missing` without finished evaluations).
+pub fn objects_markdown(rows: &[(&ResultRow, Vec<(usize, Counts)>)]) -> Result<String> {
+    let mut s = String::from("| model | seeds |");
+    for o in Object::ALL {
+        s += &format!(" {}: picked / placed % [95% CI] (episodes) |", o.name());
+    }
+    s += "\n| --- | --- |";
+    s += &" --- |".repeat(Object::ALL.len());
+    s += "\n";
+    for (r, tasks) in rows {
+        s += &format!("| {} | {} |", r.label, seeds(r));
+        if tasks.is_empty() {
+            s += &" missing |".repeat(Object::ALL.len());
+        } else {
+            for c in per_object(tasks)? {
+                s += &match c.episodes {
+                    0 => " none |".to_string(),
+                    n => format!(" {:.1} / {} ({n}) |", 100.0 * c.picked as f64 / n as f64, pct(&wilson(c.placed, n))),
+                };
+            }
+        }
+        s += "\n";
+    }
+    Ok(s)
+}
+
+/// CSV of the episodes' counts per row and task (pooled over the row's seeds): what per-task analyses start from.
+pub fn tasks_csv(rows: &[(&ResultRow, Vec<(usize, Counts)>)]) -> Result<String> {
+    let mut s = String::from("model,task,object,target_quadrant,episodes,reached,picked,placed\n");
+    for (r, tasks) in rows {
+        for (id, c) in tasks {
+            let task = Task::from_id(*id)?;
+            s += &format!(
+                "{},{id},{},{},{},{},{},{}\n",
+                r.label,
+                Object::ALL[task.object].name(),
+                task.target,
+                c.episodes,
+                c.reached,
+                c.picked,
+                c.placed
+            );
+        }
+    }
+    Ok(s)
+}
+
 /// Markdown table of success against training steps: one line per configuration and evaluated step.
 pub fn steps_markdown(curves: &[StepCurve]) -> String {
     let mut s = String::from("| model | step | reach % [95% CI] | pick % [95% CI] | place % [95% CI] |\n");
@@ -176,4 +238,45 @@ pub fn latex(rows: &[ResultRow], caption: &str) -> String {
     }
     s += &format!("\\bottomrule\n\\end{{tabular}}\n\\caption{{{caption}}}\n\\end{{table}}\n");
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn counts(episodes: usize, picked: usize, placed: usize) -> Counts {
+        Counts { episodes, reached: episodes, picked, placed, wrong_bin: Some(0) }
+    }
+
+    #[test]
+    fn objects_pool_their_four_target_quadrants_and_rows_without_episodes_read_missing() {
+        let full = ResultRow::model_for_test("full", 1600, "transformer", "spread");
+        let ablation = ResultRow::model_for_test("final_frame", 1600, "transformer", "final");
+        // Milk's tasks 0 and 3, the can's task 15; bread and cereal were not evaluated.
+        let tasks = vec![(0, counts(10, 4, 2)), (3, counts(10, 6, 5)), (15, counts(10, 9, 8))];
+        let rows = [(&full, tasks), (&ablation, Vec::new())];
+        let table = objects_markdown(&rows).unwrap();
+        let lines: Vec<&str> = table.lines().collect();
+        assert!(lines[0].contains("| milk: picked / placed %") && lines[0].contains("| can: picked"), "{table}");
+        assert_eq!(
+            lines[2],
+            format!(
+                "| full @ 1600 | 0/1 | 50.0 / {} (20) | none | none | 90.0 / {} (10) |",
+                pct(&wilson(7, 20)),
+                pct(&wilson(8, 10))
+            )
+        );
+        assert_eq!(lines[3], "| final_frame @ 1600 | 0/1 | missing | missing | missing | missing |");
+        let csv = tasks_csv(&rows).unwrap();
+        assert_eq!(
+            csv.lines().collect::<Vec<_>>(),
+            [
+                "model,task,object,target_quadrant,episodes,reached,picked,placed",
+                "full @ 1600,0,milk,0,10,10,4,2",
+                "full @ 1600,3,milk,3,10,10,6,5",
+                "full @ 1600,15,can,3,10,10,9,8",
+            ]
+        );
+        assert!(objects_markdown(&[(&full, vec![(16, counts(1, 0, 0))])]).is_err(), "task 16 does not exist");
+    }
 }

@@ -112,6 +112,20 @@ fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
     let table1 = std::fs::read_to_string(report.join("table1.md")).unwrap();
     assert!(String::from_utf8_lossy(&out.stdout).contains(&table1), "report printed no Table 1");
     assert!(before.iter().any(|(p, _)| p.ends_with("loss_curves.png")));
+    // Success per task and per object: the store's episodes counted (task 0 only, the milk's).
+    let (n, reached, picked, placed): (i64, i64, i64, i64) = conn
+        .query_row(
+            "SELECT COUNT(*), SUM(e.reached), SUM(e.picked), SUM(e.placed) FROM episodes e
+             JOIN cells c ON c.eval_key = e.eval_key WHERE c.cell = 'random' AND e.task = 0",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
+        )
+        .unwrap();
+    let tasks = std::fs::read_to_string(report.join("tasks.csv")).unwrap();
+    assert!(tasks.lines().any(|l| l == format!("random,0,milk,0,{n},{reached},{picked},{placed}")), "{tasks}");
+    let objects = std::fs::read_to_string(report.join("objects.md")).unwrap();
+    let random = objects.lines().find(|l| l.starts_with("| random |")).expect("the random policy's row");
+    assert!(random.ends_with(&format!("({n}) | none | none | none |")), "{objects}");
 
     // A new seed: only that seed's two train and two eval stages.
     std::fs::write(&file, experiment("[0, 1]", 90, 4)).unwrap();
@@ -737,5 +751,6 @@ references = ["expert"]
     let expert = grasps.lines().find(|l| l.starts_with("| expert |")).expect("the expert's row");
     assert!(expert.starts_with("| expert | 1/1 | 100.0 ["), "{grasps}");
     assert!(index.contains("## Where the gripper first closed") && index.contains(expert), "{index}");
+    assert!(!store.join("reports/objects/objects.md").exists(), "library slots are not the base world's objects");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -194,6 +194,26 @@ impl Store {
         )?)
     }
 
+    /// Stage counts per task over the episodes of the finished evaluations among `eval_keys`, pooled: (task id,
+    /// counts) in task order, tasks without episodes left out.
+    pub fn task_counts(&self, eval_keys: &[String]) -> Result<Vec<(usize, Counts)>> {
+        let mut stmt = self.conn.prepare(
+            "SELECT e.task, COUNT(*), SUM(e.reached), SUM(e.picked), SUM(e.placed), SUM(e.wrong_bin)
+             FROM episodes e JOIN stages s ON s.key = e.eval_key AND s.status = 'done'
+             WHERE e.eval_key = ?1 GROUP BY e.task",
+        )?;
+        let mut pooled = std::collections::BTreeMap::<usize, Counts>::new();
+        for key in eval_keys {
+            let rows = stmt.query_map([key], |r| Ok((r.get::<_, i64>(0)? as usize, counts(r, 1)?)))?;
+            for row in rows {
+                let (task, c) = row?;
+                let total = pooled.entry(task).or_default();
+                *total = total.plus(&c);
+            }
+        }
+        Ok(pooled.into_iter().collect())
+    }
+
     /// Where the gripper first closed over the episodes of the finished evaluations among `eval_keys`, pooled;
     /// none where they have no episodes or some were stored before the store kept it (version 4).
     pub fn grasps(&self, eval_keys: &[String]) -> Result<Option<GraspSummary>> {
