@@ -6,7 +6,7 @@ use oneshot_lab::data::collect;
 use oneshot_lab::data::collect_config::{CollectConfig, LayoutSharing};
 use oneshot_lab::sim::env::{Env, GripperYaw, ObjectSet, WorldConfig};
 use oneshot_lab::sim::expert_check::{
-    ExpertReport, LibraryReport, expert_check as check, library_check, library_instance,
+    Aim, ExpertReport, LibraryReport, expert_check as check, library_check, library_instance,
 };
 use oneshot_lab::sim::object::{Object, Split, environment_objects};
 use oneshot_lab::sim::robot::Robot;
@@ -38,6 +38,29 @@ pub struct ExpertCheckArgs {
     /// (`--per-task` environments each), among three others of its split.
     #[arg(long, value_enum, default_value_t = Objects::Base)]
     pub objects: Objects,
+    /// Aim every grasp this far off the object, in cm: `ACROSS,SIDEWAYS` in the gripper's frame (across the
+    /// fingers, along their faces), once, without starting over: what a policy's aim error of that size costs
+    /// each object (the report's `grasps.md` measures a policy's). Needs the fixed gripper yaw.
+    #[arg(long, value_parser = parse_aim_offset, allow_hyphen_values = true)]
+    pub aim_offset: Option<[f64; 2]>,
+}
+
+/// The largest aim offset `expert-check` takes along either axis (cm): beyond it the fingers close on nothing.
+const MAX_AIM_OFFSET_CM: f64 = 10.0;
+
+/// `ACROSS,SIDEWAYS` in cm, each finite and within 10 cm.
+fn parse_aim_offset(s: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    let [across, sideways] = parts[..] else {
+        return Err(format!("`{s}` is not ACROSS,SIDEWAYS (two numbers in cm, e.g. `0,2`)"));
+    };
+    let number = |p: &str| -> Result<f64, String> {
+        match p.trim().parse::<f64>() {
+            Ok(v) if v.is_finite() && v.abs() <= MAX_AIM_OFFSET_CM => Ok(v),
+            _ => Err(format!("`{p}` in `{s}` is not a number of cm within +-{MAX_AIM_OFFSET_CM}")),
+        }
+    };
+    Ok([number(across)?, number(sideways)?])
 }
 
 /// Which objects a world holds (`world.objects`).
@@ -175,11 +198,18 @@ pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
         }
     }
     let max_actions = a.max_actions.unwrap_or(CollectConfig::paper(a.robot).settings.max_actions);
+    let aim = match a.aim_offset {
+        Some([across, sideways]) => {
+            println!("aimed {across} cm across and {sideways} cm sideways off the object, once (no starting over)");
+            Aim::Off([across / 100.0, sideways / 100.0])
+        }
+        None => Aim::Privileged,
+    };
     if a.objects == Objects::Library {
-        print_library_report(&library_check(a.robot, &world, a.per_task, a.seed, max_actions)?);
+        print_library_report(&library_check(a.robot, &world, a.per_task, a.seed, max_actions, aim)?);
         return Ok(());
     }
-    let report = check(a.robot, &world, a.per_task, a.seed, max_actions)?;
+    let report = check(a.robot, &world, a.per_task, a.seed, max_actions, aim)?;
     print_report(&report);
     Ok(())
 }
@@ -279,6 +309,11 @@ fn print_report(r: &ExpertReport) {
     }
     let o = r.overall();
     println!("all  {:>7.1}% {:>7.1}% {:>7.1}%", o[0] * 100.0, o[1] * 100.0, o[2] * 100.0);
+    for (object, c) in Object::ALL.iter().zip(r.per_object()) {
+        let per = (NUM_TASKS / NUM_OBJECTS) * n;
+        let [a, b, p] = c.map(|k| format!("{k}/{per}"));
+        println!("{:<6} {a:>7} {b:>8} {p:>8}", object.name());
+    }
 }
 
 /// Prints the per-object report as a table.

@@ -62,6 +62,21 @@ pub enum Guidance {
     Given { grasp: [f64; 3], drop: [f64; 3] },
 }
 
+impl Guidance {
+    /// The privileged expert's grasp and drop points for the episode `env` was just reset to, as given positions,
+    /// the grasp point moved so that the task's object lies `offset` (metres: across the fingers, then sideways
+    /// along their faces) from the end-effector point in the gripper's frame at reset. An expert that aims off by
+    /// a known amount: how much aim error an object tolerates. Like every given guidance it does not start over
+    /// after a miss, and it holds the gripper's rest yaw.
+    pub fn aimed_off(env: &Env, offset: [f64; 2]) -> Guidance {
+        let privileged = Expert::new(env);
+        let (_, rotation) = env.eef_pose();
+        let shift = rotation * Vector3::new(offset[0], offset[1], 0.0);
+        let grasp = privileged.grasp_point(env) - Vector3::new(shift[0], shift[1], 0.0);
+        Guidance::Given { grasp: grasp.into(), drop: privileged.drop_point(env).into() }
+    }
+}
+
 /// The expert's state for one episode.
 pub struct Expert {
     guidance: Guidance,

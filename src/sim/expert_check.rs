@@ -1,9 +1,9 @@
 //! The scripted expert's staged success over instances of every task (`expert-check`).
-use super::env::{Env, WorldConfig};
+use super::env::{Env, GripperYaw, WorldConfig};
 use super::milestones::Milestones;
 use super::object::{Object, Split, split_objects};
 use super::robot::Robot;
-use super::rollout::run_expert;
+use super::rollout::{run_expert, run_expert_aimed_off};
 use super::task::{Instance, NUM_OBJECTS, NUM_TARGETS, NUM_TASKS, Task};
 use anyhow::{Result, bail};
 use rand::SeedableRng;
@@ -18,6 +18,17 @@ pub struct ExpertReport {
 }
 
 impl ExpertReport {
+    /// Counts [reached, picked, placed] per object of the base world (its four tasks pooled), in task order.
+    pub fn per_object(&self) -> [[usize; 3]; NUM_OBJECTS] {
+        let mut out = [[0; 3]; NUM_OBJECTS];
+        for (t, c) in self.per_task.iter().enumerate() {
+            for s in 0..3 {
+                out[t / NUM_TARGETS][s] += c[s];
+            }
+        }
+        out
+    }
+
     /// Fraction of all episodes that reached each stage [reached, picked, placed].
     pub fn overall(&self) -> [f64; 3] {
         let n = (self.per_task.len() * self.instances_per_task) as f64;
@@ -31,6 +42,16 @@ fn check_seed(seed: u64, task: usize, i: usize) -> u64 {
     seed.wrapping_mul(1_000_003) ^ ((task as u64) << 32) ^ (i as u64) ^ 0x00c0_ffee_0000_0000
 }
 
+/// How the checked expert aims its grasp.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Aim {
+    /// At the object, starting over after a miss (the expert that collects the data).
+    Privileged,
+    /// This far off the object (metres, across the fingers and sideways along their faces, in the gripper's
+    /// frame), once: what a policy's aim error of that size costs (needs the robot's `fixed` yaw rule).
+    Off([f64; 2]),
+}
+
 /// Runs the expert on `per_task` instances of each of the 16 tasks in `world`, without rendering.
 pub fn expert_check(
     robot: Robot,
@@ -38,14 +59,16 @@ pub fn expert_check(
     per_task: usize,
     seed: u64,
     max_actions: usize,
+    aim: Aim,
 ) -> Result<ExpertReport> {
     check_counts(per_task, max_actions)?;
+    check_aim(robot, world, aim)?;
     let mut env = Env::new(robot, world, false)?;
     let mut counts = Vec::with_capacity(NUM_TASKS);
     for t in 0..NUM_TASKS {
         let task = Task::from_id(t)?;
         let instances = (0..per_task).map(|i| Instance::sample(task, check_seed(seed, t, i)));
-        counts.push(tally(&mut env, instances, max_actions)?);
+        counts.push(tally(&mut env, instances, max_actions, aim)?);
     }
     Ok(ExpertReport { robot, per_task: counts, instances_per_task: per_task })
 }
@@ -58,11 +81,27 @@ fn check_counts(per_task: usize, max_actions: usize) -> Result<()> {
     Ok(())
 }
 
+/// Refuses an aim off the object for a robot whose gripper turns: the aimed-off expert holds the rest yaw, so it
+/// would check another expert than the robot's.
+fn check_aim(robot: Robot, world: &WorldConfig, aim: Aim) -> Result<()> {
+    if matches!(aim, Aim::Off(_)) && world.gripper_yaw(robot) != GripperYaw::Fixed {
+        bail!(
+            "--aim-offset holds the gripper's rest yaw, and the {robot}'s expert turns its gripper here: add \
+             --gripper-yaw fixed"
+        );
+    }
+    Ok(())
+}
+
 /// Runs the expert on each of `instances`, counting the episodes that [reached, picked, placed].
-fn tally(env: &mut Env, instances: impl Iterator<Item = Instance>, max_actions: usize) -> Result<[usize; 3]> {
+fn tally(env: &mut Env, instances: impl Iterator<Item = Instance>, max_actions: usize, aim: Aim) -> Result<[usize; 3]> {
     let mut c = [0usize; 3];
     for instance in instances {
-        let Milestones { reached, picked, placed, .. } = run_expert(env, &instance, max_actions, false)?.milestones;
+        let episode = match aim {
+            Aim::Privileged => run_expert(env, &instance, max_actions, false)?,
+            Aim::Off(offset) => run_expert_aimed_off(env, &instance, max_actions, offset)?,
+        };
+        let Milestones { reached, picked, placed, .. } = episode.milestones;
         for (k, hit) in [reached, picked, placed].into_iter().enumerate() {
             c[k] += hit as usize;
         }
@@ -104,13 +143,15 @@ pub fn library_check(
     per_object: usize,
     seed: u64,
     max_actions: usize,
+    aim: Aim,
 ) -> Result<LibraryReport> {
     check_counts(per_object, max_actions)?;
+    check_aim(robot, world, aim)?;
     let mut env = Env::new(robot, world, false)?;
     let mut per_object_counts = Vec::new();
     for object in Object::library() {
         let instances = (0..per_object).map(|i| library_instance(object, i, seed));
-        per_object_counts.push((object, tally(&mut env, instances, max_actions)?));
+        per_object_counts.push((object, tally(&mut env, instances, max_actions, aim)?));
     }
     Ok(LibraryReport { robot, per_object: per_object_counts, instances_per_object: per_object })
 }

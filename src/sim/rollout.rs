@@ -1,7 +1,7 @@
 //! Running the scripted expert for whole episodes.
 use super::action::Action;
 use super::env::{Env, Observation};
-use super::expert::Expert;
+use super::expert::{Expert, Guidance};
 use super::milestones::{Milestones, PLACED_Z};
 use super::task::Instance;
 use crate::seeds::derive_seed;
@@ -45,9 +45,32 @@ pub fn run_expert_perturbed(
     render: bool,
     noise: f64,
 ) -> Result<Episode> {
+    run(env, instance, max_actions, render, noise, |_| Guidance::Privileged)
+}
+
+/// Runs the expert on `instance` without rendering, aiming its grasp `offset` off the object (metres, in the
+/// gripper's frame: see [`Guidance::aimed_off`]); it does not start over after a miss.
+pub fn run_expert_aimed_off(
+    env: &mut Env,
+    instance: &Instance,
+    max_actions: usize,
+    offset: [f64; 2],
+) -> Result<Episode> {
+    run(env, instance, max_actions, false, 0.0, |env| Guidance::aimed_off(env, offset))
+}
+
+/// The expert's episode loop, its guidance made from the environment once reset.
+fn run(
+    env: &mut Env,
+    instance: &Instance,
+    max_actions: usize,
+    render: bool,
+    noise: f64,
+    guidance: impl FnOnce(&Env) -> Guidance,
+) -> Result<Episode> {
     let mut rng = ChaCha8Rng::seed_from_u64(derive_seed("expert-noise", &[instance.seed]));
     env.reset(instance)?;
-    let mut expert = Expert::new(env);
+    let mut expert = Expert::guided(env, guidance(env));
     let mut steps = Vec::with_capacity(max_actions + 1);
     let mut settle = 0;
     loop {

@@ -42,6 +42,16 @@ fn zero_instances_per_task_is_an_error_naming_the_flag() {
 }
 
 #[test]
+fn a_malformed_aim_offset_is_an_error_naming_the_value() {
+    for (value, named) in [("2", "`2` is not ACROSS,SIDEWAYS"), ("1,x", "`x` in `1,x`"), ("0,11", "`11` in `0,11`")] {
+        let out = oneshot().args(["expert-check", "--robot", "panda", "--aim-offset", value]).output().unwrap();
+        assert!(!out.status.success(), "{value} was taken");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("--aim-offset") && err.contains(named), "{value}: {err}");
+    }
+}
+
+#[test]
 fn collect_with_a_task_out_of_range_is_an_error_naming_it() {
     let out = oneshot()
         .args(["collect", "--robot", "panda", "--tasks", "2,17", "--per-task", "1", "--out", "/tmp/never-written"])
