@@ -38,9 +38,10 @@ pub struct ExpertCheckArgs {
     /// (`--per-task` environments each), among three others of its split.
     #[arg(long, value_enum, default_value_t = Objects::Base)]
     pub objects: Objects,
-    /// Aim every grasp this far off the object, in cm: `ACROSS,SIDEWAYS` in the gripper's frame (across the
-    /// fingers, along their faces), once, without starting over: what a policy's aim error of that size costs
-    /// each object (the report's `grasps.md` measures a policy's). Needs the fixed gripper yaw.
+    /// Aim every grasp off the object, once, without starting over: `ACROSS,SIDEWAYS` in cm (each within 10),
+    /// where the object's centre is to lie in the gripper's frame at the close (across the fingers, along their
+    /// faces; the signs of the report's `grasps.md`). What a policy's aim error of that size costs each object.
+    /// Needs the fixed gripper yaw.
     #[arg(long, value_parser = parse_aim_offset, allow_hyphen_values = true)]
     pub aim_offset: Option<[f64; 2]>,
 }
@@ -309,8 +310,9 @@ fn print_report(r: &ExpertReport) {
     }
     let o = r.overall();
     println!("all  {:>7.1}% {:>7.1}% {:>7.1}%", o[0] * 100.0, o[1] * 100.0, o[2] * 100.0);
-    for (object, c) in Object::ALL.iter().zip(r.per_object()) {
-        let per = (NUM_TASKS / NUM_OBJECTS) * n;
+    println!("\n{:<6} {:>7} {:>8} {:>8}", "object", "reached", "picked", "placed");
+    let per = (NUM_TASKS / NUM_OBJECTS) * n;
+    for (object, c) in Object::ALL.iter().zip(r.per_base_object()) {
         let [a, b, p] = c.map(|k| format!("{k}/{per}"));
         println!("{:<6} {a:>7} {b:>8} {p:>8}", object.name());
     }

@@ -34,6 +34,14 @@ pub struct ResultRow {
     pub eval_keys: Vec<String>,
 }
 
+impl ResultRow {
+    /// Whether it was evaluated in the multi-object world's environments (its object slots then hold other objects
+    /// than the base world's).
+    pub fn in_library_world(&self) -> bool {
+        self.objects.as_deref() == Some("library")
+    }
+}
+
 #[cfg(test)]
 impl ResultRow {
     /// A trained model's row without results, for tests: `variant @ size` with its architecture and context.

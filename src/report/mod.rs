@@ -127,7 +127,7 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         index += &tables::steps_markdown(&step_curves);
         index += "\n![success against training steps](success_vs_steps.png)\n";
     }
-    let multi_object: Vec<&ResultRow> = rows.iter().filter(|r| r.objects.as_deref() == Some("library")).collect();
+    let multi_object: Vec<&ResultRow> = rows.iter().filter(|r| r.in_library_world()).collect();
     if !multi_object.is_empty() {
         let table = tables::multi_object_markdown(&multi_object);
         write("multi_object.md", &table)?;
@@ -150,7 +150,7 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         index += &table;
     }
     let mut per_task = Vec::with_capacity(rows.len());
-    for r in rows.iter().filter(|r| r.objects.as_deref() != Some("library")) {
+    for r in rows.iter().filter(|r| !r.in_library_world()) {
         per_task.push((r, store.task_counts(&r.eval_keys)?));
     }
     if per_task.iter().any(|(_, tasks)| !tasks.is_empty()) {

@@ -37,7 +37,7 @@ pub fn paper_stages(row: &ResultRow) -> Option<[Option<(f64, f64)>; 3]> {
 /// The paper's (pick, place) on held-out objects for a multi-object row of the transformer or the
 /// Contextual-LSTM (at any size: the paper's runs have one, 2,400 instances).
 pub fn paper_multi_object(row: &ResultRow) -> Option<[(f64, Option<f64>); 2]> {
-    if row.policy != "model" || row.objects.as_deref() != Some("library") {
+    if row.policy != "model" || !row.in_library_world() {
         return None;
     }
     match (row.architecture.as_deref(), row.context.as_deref()) {

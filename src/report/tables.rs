@@ -123,7 +123,7 @@ fn per_object(tasks: &[(usize, Counts)]) -> Result<[Counts; 4]> {
 pub fn objects_markdown(rows: &[(&ResultRow, Vec<(usize, Counts)>)]) -> Result<String> {
     let mut s = String::from("| model | seeds |");
     for o in Object::ALL {
-        s += &format!(" {}: picked / placed % [95% CI] (episodes) |", o.name());
+        s += &format!(" {}: picked %, placed % [95% CI] (episodes) |", o.name());
     }
     s += "\n| --- | --- |";
     s += &" --- |".repeat(Object::ALL.len());
@@ -136,7 +136,7 @@ pub fn objects_markdown(rows: &[(&ResultRow, Vec<(usize, Counts)>)]) -> Result<S
             for c in per_object(tasks)? {
                 s += &match c.episodes {
                     0 => " none |".to_string(),
-                    n => format!(" {:.1} / {} ({n}) |", 100.0 * c.picked as f64 / n as f64, pct(&wilson(c.placed, n))),
+                    n => format!(" {:.1}, {} ({n}) |", 100.0 * c.picked as f64 / n as f64, pct(&wilson(c.placed, n))),
                 };
             }
         }
@@ -257,11 +257,14 @@ mod tests {
         let rows = [(&full, tasks), (&ablation, Vec::new())];
         let table = objects_markdown(&rows).unwrap();
         let lines: Vec<&str> = table.lines().collect();
-        assert!(lines[0].contains("| milk: picked / placed %") && lines[0].contains("| can: picked"), "{table}");
+        assert!(
+            lines[0].contains("| milk: picked %, placed % [95% CI]") && lines[0].contains("| can: picked"),
+            "{table}"
+        );
         assert_eq!(
             lines[2],
             format!(
-                "| full @ 1600 | 0/1 | 50.0 / {} (20) | none | none | 90.0 / {} (10) |",
+                "| full @ 1600 | 0/1 | 50.0, {} (20) | none | none | 90.0, {} (10) |",
                 pct(&wilson(7, 20)),
                 pct(&wilson(8, 10))
             )

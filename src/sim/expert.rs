@@ -67,11 +67,11 @@ impl Guidance {
     /// the grasp point moved so that the task's object lies `offset` (metres: across the fingers, then sideways
     /// along their faces) from the end-effector point in the gripper's frame at reset. An expert that aims off by
     /// a known amount: how much aim error an object tolerates. Like every given guidance it does not start over
-    /// after a miss, and it holds the gripper's rest yaw.
+    /// after a miss. The offset is taken in the frame of the gripper held at its rest yaw, which is where it
+    /// stays under the `fixed` yaw rule only: under another rule the offset lands elsewhere.
     pub fn aimed_off(env: &Env, offset: [f64; 2]) -> Guidance {
         let privileged = Expert::new(env);
-        let (_, rotation) = env.eef_pose();
-        let shift = rotation * Vector3::new(offset[0], offset[1], 0.0);
+        let shift = downward(env.rest_yaw()) * Vector3::new(offset[0], offset[1], 0.0);
         let grasp = privileged.grasp_point(env) - Vector3::new(shift[0], shift[1], 0.0);
         Guidance::Given { grasp: grasp.into(), drop: privileged.drop_point(env).into() }
     }

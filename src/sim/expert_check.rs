@@ -19,7 +19,7 @@ pub struct ExpertReport {
 
 impl ExpertReport {
     /// Counts [reached, picked, placed] per object of the base world (its four tasks pooled), in task order.
-    pub fn per_object(&self) -> [[usize; 3]; NUM_OBJECTS] {
+    pub fn per_base_object(&self) -> [[usize; 3]; NUM_OBJECTS] {
         let mut out = [[0; 3]; NUM_OBJECTS];
         for (t, c) in self.per_task.iter().enumerate() {
             for s in 0..3 {
@@ -48,7 +48,8 @@ pub enum Aim {
     /// At the object, starting over after a miss (the expert that collects the data).
     Privileged,
     /// This far off the object (metres, across the fingers and sideways along their faces, in the gripper's
-    /// frame), once: what a policy's aim error of that size costs (needs the robot's `fixed` yaw rule).
+    /// frame), once: what a policy's aim error of that size costs (needs the robot's `fixed` yaw rule). It hovers
+    /// above its grasp point rather than above the object, so `Off([0.0, 0.0])` is the expert without restarts.
     Off([f64; 2]),
 }
 
@@ -154,4 +155,16 @@ pub fn library_check(
         per_object_counts.push((object, tally(&mut env, instances, max_actions, aim)?));
     }
     Ok(LibraryReport { robot, per_object: per_object_counts, instances_per_object: per_object })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn per_base_object_pools_each_objects_four_target_quadrants() {
+        let per_task = (0..NUM_TASKS).map(|t| [t, t % NUM_TARGETS, 1]).collect();
+        let report = ExpertReport { robot: Robot::Panda, per_task, instances_per_task: 1 };
+        assert_eq!(report.per_base_object(), [[6, 6, 4], [22, 6, 4], [38, 6, 4], [54, 6, 4]]);
+    }
 }

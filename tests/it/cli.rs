@@ -52,6 +52,18 @@ fn a_malformed_aim_offset_is_an_error_naming_the_value() {
 }
 
 #[test]
+fn an_aim_offset_takes_negative_centimetres() {
+    let out = oneshot()
+        .args(["expert-check", "--robot", "panda", "--per-task", "1", "--aim-offset", "-1,-2"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("aimed -1 cm across and -2 cm sideways"), "{text}");
+    assert!(text.lines().any(|l| l.starts_with("can ") && l.ends_with("/4")), "a line per object: {text}");
+}
+
+#[test]
 fn collect_with_a_task_out_of_range_is_an_error_naming_it() {
     let out = oneshot()
         .args(["collect", "--robot", "panda", "--tasks", "2,17", "--per-task", "1", "--out", "/tmp/never-written"])
