@@ -82,6 +82,26 @@ impl HoldSummary {
         let share = |k: usize| if steps == 0 { 0.0 } else { k as f64 / steps as f64 };
         Some(HoldSummary { episodes, steps, opened: share(opened), lifted: share(lifted), lost, let_go, slipped })
     }
+
+    /// Several evaluations' summaries as one (the shares weighted by their holding steps); none of none.
+    pub fn pooled(parts: &[HoldSummary]) -> Option<HoldSummary> {
+        let first = parts.first()?;
+        Some(parts[1..].iter().fold(*first, |a, b| {
+            let steps = a.steps + b.steps;
+            let share = |x: f64, y: f64| {
+                if steps == 0 { 0.0 } else { (x * a.steps as f64 + y * b.steps as f64) / steps as f64 }
+            };
+            HoldSummary {
+                episodes: a.episodes + b.episodes,
+                steps,
+                opened: share(a.opened, b.opened),
+                lifted: share(a.lifted, b.lifted),
+                lost: a.lost + b.lost,
+                let_go: a.let_go + b.let_go,
+                slipped: a.slipped + b.slipped,
+            }
+        }))
+    }
 }
 
 #[cfg(test)]
@@ -133,5 +153,16 @@ mod tests {
         rose.last_mut().unwrap().picked = true;
         assert_eq!(HoldSummary::of(&[trace(rose)]).unwrap().lost, 0, "a picked episode is not lost");
         assert_eq!(HoldSummary::of(&[]), None);
+    }
+
+    #[test]
+    fn pooled_summaries_add_their_counts_and_weight_their_shares_by_holding_steps() {
+        let a = HoldSummary { episodes: 2, steps: 10, opened: 0.1, lifted: 0.5, lost: 1, let_go: 1, slipped: 0 };
+        let b = HoldSummary { episodes: 3, steps: 30, opened: 0.3, lifted: 0.1, lost: 2, let_go: 0, slipped: 2 };
+        let p = HoldSummary::pooled(&[a, b]).unwrap();
+        assert_eq!((p.episodes, p.steps, p.lost, p.let_go, p.slipped), (5, 40, 3, 1, 2));
+        assert!((p.opened - 0.25).abs() < 1e-12 && (p.lifted - 0.2).abs() < 1e-12, "{p:?}");
+        assert_eq!(HoldSummary::pooled(&[a]), Some(a));
+        assert_eq!(HoldSummary::pooled(&[]), None);
     }
 }

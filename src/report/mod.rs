@@ -1,5 +1,6 @@
 //! Reports: the paper's tables and figures for one experiment, rebuilt from the results store alone.
 pub mod data;
+pub mod holds;
 pub mod html;
 pub mod paper;
 pub mod plots;
@@ -147,6 +148,15 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
                   after the step that first commanded the gripper closed (from the end-effector point: x across the \
                   fingers, y along their faces, z along them), medians over the episodes that picked it and those \
                   that did not: what a failed grasp missed by.\n\n";
+        index += &table;
+    }
+    if let Some(table) = holds::markdown(store, &rows)? {
+        write("holds.md", &table)?;
+        index += "\n## After the close\n\nFrom the traces of evaluations that kept them (`eval.traces`): the steps at \
+                  which the gripper held the task's object on the table (closed, fingers stopped on it, the object \
+                  between them), the share after which the next command opened the gripper or lifted, and of the \
+                  episodes that held the object and never picked it, how many let go before the gripper rose and \
+                  how many rose without it.\n\n";
         index += &table;
     }
     let mut per_task = Vec::with_capacity(rows.len());

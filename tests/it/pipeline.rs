@@ -709,6 +709,7 @@ episodes = 4
 horizon = 80
 batch = 4
 tasks = [0, 5]
+traces = true
 [grid]
 sizes = [8]
 references = ["expert"]
@@ -752,5 +753,18 @@ references = ["expert"]
     assert!(expert.starts_with("| expert | 1/1 | 100.0 ["), "{grasps}");
     assert!(index.contains("## Where the gripper first closed") && index.contains(expert), "{index}");
     assert!(!store.join("reports/objects/objects.md").exists(), "library slots are not the base world's objects");
+    // The traces' holds: the expert holds the object on the table in every episode, lifts and never loses it; the
+    // report's row is the stage summary's.
+    let holds: serde_json::Value = summary["holds"].clone();
+    assert_eq!((holds["episodes"].as_u64(), holds["lost"].as_u64()), (Some(4), Some(0)), "{holds}");
+    let table = std::fs::read_to_string(store.join("reports/objects/holds.md")).unwrap();
+    let expert = table.lines().find(|l| l.starts_with("| expert |")).expect("the expert's row");
+    let lifted = 100.0 * holds["lifted"].as_f64().unwrap();
+    assert_eq!(
+        expert,
+        format!("| expert | 1/1 | 4 | {} | 0% / {lifted:.0}% | 0 / 0 of 0 |", holds["steps"]),
+        "{table}"
+    );
+    assert!(lifted > 0.0 && index.contains("## After the close"), "{index}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
