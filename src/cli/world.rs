@@ -34,6 +34,9 @@ pub struct ExpertCheckArgs {
     /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
     #[arg(long)]
     pub close_on_arrival: bool,
+    /// The expert rises as soon as its fingers have stopped after closing (world.rise_on_grip).
+    #[arg(long)]
+    pub rise_on_grip: bool,
     /// `base`: the 16 tasks of the four base objects; `library`: each of the 30 library objects in turn
     /// (`--per-task` environments each), among three others of its split.
     #[arg(long, value_enum, default_value_t = Objects::Base)]
@@ -126,6 +129,9 @@ pub struct CollectArgs {
     /// The expert closes the gripper on reaching the grasp point (world.close_on_arrival).
     #[arg(long)]
     pub close_on_arrival: bool,
+    /// The expert rises as soon as its fingers have stopped after closing (world.rise_on_grip).
+    #[arg(long)]
+    pub rise_on_grip: bool,
     /// Whether layouts recur under several tasks (default: collect.layouts, the authors' `shared`).
     #[arg(long, value_enum)]
     pub layouts: Option<Layouts>,
@@ -185,8 +191,12 @@ pub struct ContactSheetArgs {
 
 /// `expert-check`: the expert's staged success per task.
 pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
-    let mut world =
-        WorldConfig { close_on_arrival: a.close_on_arrival, objects: a.objects.set(), ..WorldConfig::default() };
+    let mut world = WorldConfig {
+        close_on_arrival: a.close_on_arrival,
+        rise_on_grip: a.rise_on_grip,
+        objects: a.objects.set(),
+        ..WorldConfig::default()
+    };
     if let Some(rule) = a.gripper_yaw {
         let rule = match rule {
             YawRule::Fixed => GripperYaw::Fixed,
@@ -217,7 +227,12 @@ pub fn expert_check(a: ExpertCheckArgs) -> Result<()> {
 
 /// `collect`: expert trajectories into a new dataset folder.
 pub fn collect(a: CollectArgs) -> Result<()> {
-    let world = WorldConfig { close_on_arrival: a.close_on_arrival, objects: a.objects.set(), ..a.frames.world() };
+    let world = WorldConfig {
+        close_on_arrival: a.close_on_arrival,
+        rise_on_grip: a.rise_on_grip,
+        objects: a.objects.set(),
+        ..a.frames.world()
+    };
     let mut config = CollectConfig { world, ..CollectConfig::paper(a.robot) };
     config.per_task = a.per_task.unwrap_or(config.per_task);
     let s = &mut config.settings;

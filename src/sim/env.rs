@@ -59,6 +59,11 @@ pub struct WorldConfig {
     /// latest), so that the gripper does not wait, motionless, at the bottom: from a few recent frames a policy
     /// cannot tell that wait from the closing it must follow with a rise.
     pub close_on_arrival: bool,
+    /// When the experts rise after closing: `false` after 3 steps closed in place (this world's *fixed* departure:
+    /// the authors rise while closing, which here loses most objects); `true` as soon as the fingers have stopped
+    /// (3 steps at the latest), so that the fingers do not rest, motionless, on the object before the rise: from
+    /// a few recent frames a policy cannot tell how long they have rested.
+    pub rise_on_grip: bool,
     /// The objects: `base` (the four of the paper's main experiment) or `library` (the appendix's multi-object
     /// environments: each environment lays out four of the 30 library objects, drawn by its own seed).
     pub objects: ObjectSet,
@@ -106,6 +111,7 @@ impl Default for WorldConfig {
             agent_yaw: GripperYaw::Fixed,
             demo_yaw: GripperYaw::ObjectYaw,
             close_on_arrival: false,
+            rise_on_grip: false,
             objects: ObjectSet::Base,
         }
     }
@@ -362,7 +368,7 @@ impl Env {
             eef_pixel: self.project(eef_pos),
             joint_pos: self.arm_q(),
             joint_vel: self.ids.arm_dof.map(|d| qvel[d]),
-            gripper_qpos: self.ids.finger_qpos.map(|a| qpos[a]),
+            gripper_qpos: self.finger_qpos(),
             object_poses: std::array::from_fn(|k| {
                 let a = self.ids.object_qpos[k];
                 qpos[a..a + 7].try_into().expect("free joint has 7 coordinates")
@@ -394,6 +400,12 @@ impl Env {
     pub fn eef_pose(&self) -> (Vector3<f64>, nalgebra::Matrix3<f64>) {
         let site = self.ids.ee_site;
         (Vector3::from(self.data.site_xpos()[site]), mat_from_mj(&self.data.site_xmat()[site]))
+    }
+
+    /// The gripper's two finger joint positions.
+    pub fn finger_qpos(&self) -> [f64; 2] {
+        let qpos = self.data.qpos();
+        self.ids.finger_qpos.map(|a| qpos[a])
     }
 
     /// Position of object `k`.

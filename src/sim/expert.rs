@@ -3,9 +3,9 @@
 //! point; close the gripper; rise back towards the hover point (2 steps); carry to 0.3 above the target quadrant's
 //! centre until within reach of it; open. Every position target lies at most 0.15 from the gripper. Departures,
 //! both for this world's physics: the authors close the gripper while already rising, which here loses most
-//! objects, so the gripper closes in place for 3 steps first; and they rise towards the point above the object,
-//! which here feeds a swing of the arm back into the target, so the gripper rises straight up from where it
-//! closed. Unlike the authors', whose failed episodes were discarded and re-run, the expert starts over from the
+//! objects, so the gripper closes in place for 3 steps first (or, with `world.rise_on_grip`, until its fingers
+//! have stopped); and they rise towards the point above the object, which here feeds a swing of the arm back into
+//! the target, so the gripper rises straight up from where it closed. Unlike the authors', whose failed episodes were discarded and re-run, the expert starts over from the
 //! approach when the object is not in the gripper as it carries, so that demonstrations also show recoveries.
 //! How the gripper turns about the vertical is a world setting per robot ([`GripperYaw`]).
 use super::action::Action;
@@ -26,9 +26,11 @@ const LAST_APPROACH_STEP: usize = 14;
 const CLOSE_AFTER: usize = 8;
 /// Distance to the grasp point at which `close_on_arrival` closes the gripper.
 const ARRIVAL_TOLERANCE: f64 = 0.01;
-/// Steps from closing the gripper to rising, and to the start of the carry.
+/// Steps from closing the gripper to rising (at the latest, with `rise_on_grip`), and from rising to the carry.
 const RISE_AFTER: usize = 3;
-const CARRY_AFTER: usize = RISE_AFTER + 2;
+const RISING_STEPS: usize = 2;
+/// With `rise_on_grip`, the fingers have stopped once no finger joint moved more than this in a step (metres).
+const FINGERS_STILL: f64 = 0.001;
 /// Height of the carry point: 0.3 above the bin floor, kept inside the action's z range.
 const CARRY_Z: f64 = 1.1;
 /// Largest distance of a position target from the gripper (the authors' `max_step`).
@@ -91,6 +93,12 @@ pub struct Expert {
     closed_at: Option<usize>,
     /// Close as soon as the grasp point is reached (see [`super::env::WorldConfig::close_on_arrival`]).
     close_on_arrival: bool,
+    /// Rise as soon as the fingers have stopped (see [`super::env::WorldConfig::rise_on_grip`]).
+    rise_on_grip: bool,
+    /// The finger joints when the last action was chosen.
+    fingers: Option<[f64; 2]>,
+    /// Step at which the gripper began to rise from where it closed.
+    rose_at: Option<usize>,
     /// Where the gripper closed.
     grasp: Option<Vector3<f64>>,
     released: bool,
@@ -120,7 +128,7 @@ impl Expert {
                 wrap_angle(start_yaw + (p[1] - ee[1]).atan2(p[0] - ee[0]) + turn)
             }
         };
-        let close_on_arrival = env.config().close_on_arrival;
+        let (close_on_arrival, rise_on_grip) = (env.config().close_on_arrival, env.config().rise_on_grip);
         Expert {
             guidance,
             start_yaw,
@@ -129,6 +137,9 @@ impl Expert {
             descent: None,
             closed_at: None,
             close_on_arrival,
+            rise_on_grip,
+            fingers: None,
+            rose_at: None,
             grasp: None,
             released: false,
         }
@@ -185,6 +196,15 @@ impl Expert {
                 self.closed_at = Some(t);
             }
         }
+        let fingers = env.finger_qpos();
+        let moved = self.fingers.map(|f| (0..2).map(|i| (fingers[i] - f[i]).abs()).fold(0.0, f64::max));
+        self.fingers = Some(fingers);
+        if let (Some(c), None) = (self.closed_at, self.rose_at) {
+            let gripped = self.rise_on_grip && t > c && moved.is_some_and(|m| m < FINGERS_STILL);
+            if gripped || t >= c + RISE_AFTER {
+                self.rose_at = Some(t);
+            }
+        }
         let (target, gripper) = match (self.descent, self.closed_at) {
             (None, _) => {
                 if (hover - ee).norm() < APPROACH_TOLERANCE || t >= LAST_APPROACH_STEP {
@@ -193,14 +213,14 @@ impl Expert {
                 (hover, -1.0)
             }
             (Some(_), None) => (grasp_point, -1.0),
-            (_, Some(c)) if t < c + RISE_AFTER => (*self.grasp.get_or_insert(ee), 1.0),
-            (_, Some(c)) if t < c + CARRY_AFTER => {
+            (_, Some(_)) if self.rose_at.is_none() => (*self.grasp.get_or_insert(ee), 1.0),
+            (_, Some(_)) if self.rose_at.is_some_and(|r| t < r + RISING_STEPS) => {
                 let g = self.grasp.unwrap_or(ee);
                 (Vector3::new(g[0], g[1], g[2] + HOVER), 1.0)
             }
             _ if privileged && !self.released && ee[2] - obj[2] > LOST_BELOW => {
                 // The grasp failed or the object slipped out: start over from above it.
-                (self.t, self.descent, self.closed_at, self.grasp) = (1, None, None, None);
+                (self.t, self.descent, self.closed_at, self.grasp, self.rose_at) = (1, None, None, None, None);
                 (hover, -1.0)
             }
             _ if !self.released && (carry - ee).norm() > release_distance(env.robot()) => (carry, 1.0),

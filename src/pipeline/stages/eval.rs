@@ -42,11 +42,12 @@ fn identity(e: &EvalConfig) -> EvalConfig {
 /// change results and who acts, less the settings added after keys existed at their earlier value.
 fn key_inputs(world: &WorldConfig, eval: &EvalConfig, policy: &str) -> Value {
     let mut inputs = json!({ "world": world, "eval": identity(eval), "policy": policy });
-    let [close, objects] = super::neutral_world();
+    let [close, rise, objects] = super::neutral_world();
     omit_when(
         &mut inputs,
         &[
             close,
+            rise,
             objects,
             ("eval.videos", json!([])),
             ("eval.control", json!("policy")),

@@ -18,9 +18,10 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// The world's settings that keys leave out at their first value (added after keys existed).
-fn neutral_world() -> [(&'static str, serde_json::Value); 2] {
+fn neutral_world() -> [(&'static str, serde_json::Value); 3] {
     [
         ("world.close_on_arrival", serde_json::Value::Bool(false)),
+        ("world.rise_on_grip", serde_json::Value::Bool(false)),
         ("world.objects", serde_json::Value::String("base".into())),
     ]
 }
