@@ -35,20 +35,23 @@ fn row_holds(store: &Store, row: &ResultRow) -> Result<Option<HoldSummary>> {
     Ok(HoldSummary::pooled(&parts))
 }
 
-/// The Markdown table of the rows whose evaluations kept traces; none where no row's did.
+/// The Markdown table of the rows whose evaluations kept traces (a row with an evaluation summarised before
+/// holds were recorded is left out); none where no row's did.
 pub fn markdown(store: &Store, rows: &[ResultRow]) -> Result<Option<String>> {
     let mut lines = Vec::new();
     for row in rows {
         if let Some(h) = row_holds(store, row)? {
             lines.push(format!(
-                "| {} | {}/{} | {} | {} | {:.0}% / {:.0}% | {} / {} of {} |",
+                "| {} | {}/{} | {} | {} | {} | {} / {} of {} |",
                 row.label,
                 row.seeds_done,
                 row.seeds_total,
                 h.episodes,
                 h.steps,
-                100.0 * h.opened,
-                100.0 * h.lifted,
+                match h.steps {
+                    0 => "-".to_string(),
+                    _ => format!("{:.0}% / {:.0}%", 100.0 * h.opened, 100.0 * h.lifted),
+                },
                 h.let_go,
                 h.slipped,
                 h.lost

@@ -60,9 +60,9 @@ pub struct WorldConfig {
     /// cannot tell that wait from the closing it must follow with a rise.
     pub close_on_arrival: bool,
     /// When the experts rise after closing: `false` after 3 steps closed in place (this world's *fixed* departure:
-    /// the authors rise while closing, which here loses most objects); `true` as soon as the fingers have stopped
-    /// (3 steps at the latest), so that the fingers do not rest, motionless, on the object before the rise: from
-    /// a few recent frames a policy cannot tell how long they have rested.
+    /// the authors rise while closing, which here loses most objects); `true` once a step has left the fingers
+    /// still (2 steps at the earliest, 3 at the latest), so that they rest on the object one step rather than up
+    /// to two before the rise: from a few recent frames a policy cannot tell how long they have rested.
     pub rise_on_grip: bool,
     /// The objects: `base` (the four of the paper's main experiment) or `library` (the appendix's multi-object
     /// environments: each environment lays out four of the 30 library objects, drawn by its own seed).

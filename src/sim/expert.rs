@@ -5,9 +5,10 @@
 //! both for this world's physics: the authors close the gripper while already rising, which here loses most
 //! objects, so the gripper closes in place for 3 steps first (or, with `world.rise_on_grip`, until its fingers
 //! have stopped); and they rise towards the point above the object, which here feeds a swing of the arm back into
-//! the target, so the gripper rises straight up from where it closed. Unlike the authors', whose failed episodes were discarded and re-run, the expert starts over from the
-//! approach when the object is not in the gripper as it carries, so that demonstrations also show recoveries.
-//! How the gripper turns about the vertical is a world setting per robot ([`GripperYaw`]).
+//! the target, so the gripper rises straight up from where it closed. Unlike the authors', whose failed episodes
+//! were discarded and re-run, the expert starts over from the approach when the object is not in the gripper as it
+//! carries, so that demonstrations also show recoveries. How the gripper turns about the vertical is a world
+//! setting per robot ([`GripperYaw`]).
 use super::action::Action;
 use super::env::{Env, GripperYaw};
 use super::robot::Robot;
@@ -26,8 +27,11 @@ const LAST_APPROACH_STEP: usize = 14;
 const CLOSE_AFTER: usize = 8;
 /// Distance to the grasp point at which `close_on_arrival` closes the gripper.
 const ARRIVAL_TOLERANCE: f64 = 0.01;
-/// Steps from closing the gripper to rising (at the latest, with `rise_on_grip`), and from rising to the carry.
+/// Steps from closing the gripper to rising (at the latest, with `rise_on_grip`).
 const RISE_AFTER: usize = 3;
+/// With `rise_on_grip`, the fewest steps from closing the gripper to rising: a closing step, then a still one.
+const RISE_ON_GRIP_AFTER: usize = 2;
+/// Steps of rising straight up before the carry.
 const RISING_STEPS: usize = 2;
 /// With `rise_on_grip`, the fingers have stopped once no finger joint moved more than this in a step (metres).
 const FINGERS_STILL: f64 = 0.001;
@@ -200,7 +204,7 @@ impl Expert {
         let moved = self.fingers.map(|f| (0..2).map(|i| (fingers[i] - f[i]).abs()).fold(0.0, f64::max));
         self.fingers = Some(fingers);
         if let (Some(c), None) = (self.closed_at, self.rose_at) {
-            let gripped = self.rise_on_grip && t > c && moved.is_some_and(|m| m < FINGERS_STILL);
+            let gripped = self.rise_on_grip && t >= c + RISE_ON_GRIP_AFTER && moved.is_some_and(|m| m < FINGERS_STILL);
             if gripped || t >= c + RISE_AFTER {
                 self.rose_at = Some(t);
             }

@@ -169,6 +169,11 @@ fn settings_added_after_keys_existed_stay_out_of_them_at_their_first_value() {
     let world = |extra: &str| stage_inputs(extra, |c| c.collect_agent.clone())["world"].clone();
     assert!(world("").get("close_on_arrival").is_none());
     assert_eq!(world("[world]\nclose_on_arrival = true\n")["close_on_arrival"], true);
+    let eval_world = |extra: &str| stage_inputs(extra, |c| Some(c.eval.clone()))["world"].clone();
+    for w in [world, eval_world] {
+        assert!(w("").get("rise_on_grip").is_none(), "left out of collect and eval keys at its default");
+        assert_eq!(w("[world]\nrise_on_grip = true\n")["rise_on_grip"], true);
+    }
 }
 
 #[test]

@@ -293,9 +293,9 @@ fn an_expert_aimed_off_closes_that_far_from_the_object_and_a_wide_miss_costs_the
 #[test]
 fn with_rise_on_grip_the_expert_lifts_once_its_fingers_stop_and_still_places() {
     // Closed actions before the first that lifts (targets the gripper 5 cm above where it is), per episode.
-    let holds = |rise_on_grip: bool| -> Vec<usize> {
+    let holds = |robot: Robot, rise_on_grip: bool| -> Vec<usize> {
         let world = WorldConfig { close_on_arrival: true, rise_on_grip, ..WorldConfig::default() };
-        let mut env = Env::new(Robot::Panda, &world, false).unwrap();
+        let mut env = Env::new(robot, &world, false).unwrap();
         (0..8)
             .map(|i| {
                 env.reset(&Instance::sample(Task::from_id(i * 2).unwrap(), 40 + i as u64)).unwrap();
@@ -315,10 +315,15 @@ fn with_rise_on_grip_the_expert_lifts_once_its_fingers_stop_and_still_places() {
             })
             .collect()
     };
-    let (on_a_clock, on_grip) = (holds(false), holds(true));
-    assert!(on_a_clock.iter().all(|&n| n == 3), "the default expert holds 3 steps: {on_a_clock:?}");
-    assert!(on_grip.iter().all(|&n| (2..=3).contains(&n)), "{on_grip:?}");
-    assert!(on_grip.iter().filter(|&&n| n == 2).count() >= 4, "most lift once the fingers stop: {on_grip:?}");
+    for robot in Robot::ALL {
+        let (on_a_clock, on_grip) = (holds(robot, false), holds(robot, true));
+        assert!(on_a_clock.iter().all(|&n| n == 3), "{robot}: the default expert holds 3 steps: {on_a_clock:?}");
+        assert!(on_grip.iter().all(|&n| (2..=3).contains(&n)), "{robot}: {on_grip:?}");
+        assert!(
+            on_grip.iter().filter(|&&n| n == 2).count() >= 4,
+            "{robot}: most lift once the fingers stop: {on_grip:?}"
+        );
+    }
     let world = WorldConfig { close_on_arrival: true, rise_on_grip: true, ..WorldConfig::default() };
     for robot in Robot::ALL {
         let placed = expert_check(robot, &world, 2, 0, 100, Aim::Privileged).unwrap().overall()[2];
