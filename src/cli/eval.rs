@@ -88,6 +88,8 @@ pub enum ActionArg {
     Sample,
     /// The mean of the most probable mixture component: no sampling noise.
     Mode,
+    /// The mean of a sampled mixture component: no spread within the component.
+    Component,
 }
 
 /// How the agent's window of frames is kept (`eval.history`).
@@ -234,6 +236,7 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         config.action = match action {
             ActionArg::Sample => ActionChoice::Sample,
             ActionArg::Mode => ActionChoice::Mode,
+            ActionArg::Component => ActionChoice::Component,
         };
     }
     let layouts = match a.training_layouts.as_deref() {

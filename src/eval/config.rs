@@ -20,6 +20,9 @@ pub enum ActionChoice {
     /// The mean of the most probable mixture component: no sampling noise, which matters while the learned
     /// scales are still wide (short training runs).
     Mode,
+    /// The mean of a sampled mixture component: the sample's choice between components (to lift or to stay)
+    /// without the logistic spread within one (a diagnosis, not the authors').
+    Component,
 }
 
 /// Who moves the agent during an evaluation of a network.
@@ -69,7 +72,7 @@ pub struct EvalConfig {
     /// Most agent frames the network sees; at most `model.agent_frames - 1`, the window positions that
     /// behaviour cloning trains.
     pub history_frames: usize,
-    /// Sampled or most likely actions.
+    /// Sampled actions (the authors'), the most likely, or a sampled component's mean.
     pub action: ActionChoice,
     /// Replace the network's rotation by the agent expert's fixed orientation (the authors' test script does;
     /// needs `world.agent_yaw = "fixed"`).

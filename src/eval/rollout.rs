@@ -8,7 +8,7 @@ use super::{EpisodeResult, EpisodeTrace, EvalOutput, GripperClose, TraceStep, st
 use crate::data::augment::AugmentDraw;
 use crate::data::pairs::context_indices;
 use crate::data::trajectory::jpeg_round_trip;
-use crate::model::mixture::{MixtureParams, mixture_mode, mixture_sample};
+use crate::model::mixture::{MixtureParams, mixture_component_mean, mixture_mode, mixture_sample};
 use crate::seeds::derive_seed;
 use crate::sim::action::{ACTION_DIM, Action};
 use crate::sim::env::{STATE_DIM, WorldConfig};
@@ -304,6 +304,7 @@ fn network_actions(
         match choice {
             ActionChoice::Sample => mixture_sample(&params),
             ActionChoice::Mode => mixture_mode(&params),
+            ActionChoice::Component => mixture_component_mean(&params),
         }
         .to_device(Device::Cpu)
     });

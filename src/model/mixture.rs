@@ -107,15 +107,27 @@ pub fn mixture_mode(p: &MixtureParams) -> Tensor {
     p.means.gather(-1, &k, false).squeeze_dim(-1).clamp(-1.0, 1.0)
 }
 
-/// Draws one sample per entry: a Gumbel-max component, then a logistic sample from it clamped to [-1, 1].
-pub fn mixture_sample(p: &MixtureParams) -> Tensor {
+/// Draws one component index per entry (`[.., dims, 1]`) with probability softmax(logits): the Gumbel-max trick.
+fn sample_component(p: &MixtureParams) -> Tensor {
     let u = Tensor::rand_like(&p.logits) * (1.0 - 2e-5) + 1e-5;
     let gumbel = -(-u.log()).log();
-    let k = (&p.logits + gumbel).argmax(-1, true);
+    (&p.logits + gumbel).argmax(-1, true)
+}
+
+/// Draws one sample per entry: a Gumbel-max component, then a logistic sample from it clamped to [-1, 1].
+pub fn mixture_sample(p: &MixtureParams) -> Tensor {
+    let k = sample_component(p);
     let mean = p.means.gather(-1, &k, false).squeeze_dim(-1);
     let log_scale = p.log_scales.gather(-1, &k, false).squeeze_dim(-1);
     let u = Tensor::rand_like(&mean) * (1.0 - 2e-5) + 1e-5;
     (mean + log_scale.exp() * (u.log() - u.neg().log1p())).clamp(-1.0, 1.0)
+}
+
+/// The mean of a sampled component per entry, clamped to [-1, 1]: the sample's choice between components without
+/// the logistic spread within one.
+pub fn mixture_component_mean(p: &MixtureParams) -> Tensor {
+    let k = sample_component(p);
+    p.means.gather(-1, &k, false).squeeze_dim(-1).clamp(-1.0, 1.0)
 }
 
 #[cfg(test)]
@@ -188,5 +200,24 @@ mod tests {
         assert!((got_mean - mean).abs() < 0.005, "{got_mean} vs {mean}");
         assert!((got_var - var).abs() / var < 0.03, "{got_var} vs {var}");
         assert!(s.abs().max().double_value(&[]) <= 1.0);
+    }
+    #[test]
+    fn component_means_pick_each_component_as_often_as_its_weight() {
+        tch::manual_seed(11);
+        let (means, log_scales, logits) = ([0.3, -0.4], [-1.0, -1.0], [0.0, 3.0f64.ln()]);
+        let p = params(means, log_scales, logits);
+        let n = 40_000;
+        let big = MixtureParams {
+            means: p.means.expand([n, 1, 2], false),
+            log_scales: p.log_scales.expand([n, 1, 2], false),
+            logits: p.logits.expand([n, 1, 2], false),
+        };
+        let s = Vec::<f32>::try_from(mixture_component_mean(&big).flatten(0, -1)).unwrap();
+        let first = s.iter().filter(|&&v| (f64::from(v) - means[0]).abs() < 1e-6).count();
+        let second = s.iter().filter(|&&v| (f64::from(v) - means[1]).abs() < 1e-6).count();
+        // Every value is one of the two means exactly (no spread), in the weights' proportion 1 : 3.
+        assert_eq!(first + second, s.len());
+        let share = first as f64 / s.len() as f64;
+        assert!((share - 0.25).abs() < 0.01, "first component's share {share}");
     }
 }

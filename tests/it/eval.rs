@@ -3,7 +3,7 @@ use crate::helpers::{scratch, torch_rng};
 use oneshot_lab::eval::EvalConfig;
 use oneshot_lab::eval::layouts::Layouts;
 use oneshot_lab::eval::run::run_eval;
-use oneshot_lab::eval::{Actor, Weights};
+use oneshot_lab::eval::{ActionChoice, Actor, Weights};
 use oneshot_lab::model::config::ModelConfig;
 use oneshot_lab::sim::camera::{ImageSize, Visuals};
 use oneshot_lab::sim::env::{ObjectSet, STATE_VERSION, WorldConfig};
@@ -71,6 +71,13 @@ fn the_same_checkpoint_seed_and_count_give_the_same_episodes_and_another_state_e
     let (b, _) = run_eval(&policy, Some(&world()), &config(4, 8), &Layouts::Fresh(none.clone()), 1, None).unwrap();
     assert_eq!(a, b);
     assert!(a.iter().all(|e| e.steps == 8 || e.placed));
+    // The most likely action and a sampled component's mean go through the same rollout, as reproducibly.
+    for action in [ActionChoice::Mode, ActionChoice::Component] {
+        let chosen = EvalConfig { action, ..config(4, 8) };
+        let (x, _) = run_eval(&policy, Some(&world()), &chosen, &Layouts::Fresh(none.clone()), 2, None).unwrap();
+        let (y, _) = run_eval(&policy, Some(&world()), &chosen, &Layouts::Fresh(none.clone()), 1, None).unwrap();
+        assert_eq!(x, y, "{action:?}");
+    }
     // A network that reads the robot's state runs on the state observed with each frame, as reproducibly.
     let stated = scratch("eval-repeat-state");
     let model = ModelConfig { concat_state: true, ..model };
