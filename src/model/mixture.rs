@@ -146,6 +146,12 @@ mod tests {
         MixtureParams { means: t(means), log_scales: t(log_scales), logits: t(logits) }
     }
 
+    /// The same one-entry mixture `n` times over: `[n, 1, 2]`.
+    fn repeated(p: MixtureParams, n: i64) -> MixtureParams {
+        let many = |t: &Tensor| t.expand([n, 1, 2], false);
+        MixtureParams { means: many(&p.means), log_scales: many(&p.log_scales), logits: many(&p.logits) }
+    }
+
     /// The bin probability computed by hand from logistic CDFs.
     fn hand_prob(x: f64, means: [f64; 2], log_scales: [f64; 2], logits: [f64; 2]) -> f64 {
         let h = 1.0 / 255.0;
@@ -182,13 +188,7 @@ mod tests {
     fn samples_match_the_mixture_mean_and_spread() {
         tch::manual_seed(7);
         let (means, log_scales, logits) = ([0.3, -0.4], [-2.5, -3.0], [0.0, 2.0f64.ln()]);
-        let p = params(means, log_scales, logits);
-        let n = 100_000;
-        let big = MixtureParams {
-            means: p.means.expand([n, 1, 2], false),
-            log_scales: p.log_scales.expand([n, 1, 2], false),
-            logits: p.logits.expand([n, 1, 2], false),
-        };
+        let big = repeated(params(means, log_scales, logits), 100_000);
         let s = mixture_sample(&big);
         let (w0, w1) = (1.0 / 3.0, 2.0 / 3.0);
         let mean = w0 * means[0] + w1 * means[1];
@@ -201,17 +201,12 @@ mod tests {
         assert!((got_var - var).abs() / var < 0.03, "{got_var} vs {var}");
         assert!(s.abs().max().double_value(&[]) <= 1.0);
     }
+
     #[test]
     fn component_means_pick_each_component_as_often_as_its_weight() {
         tch::manual_seed(11);
         let (means, log_scales, logits) = ([0.3, -0.4], [-1.0, -1.0], [0.0, 3.0f64.ln()]);
-        let p = params(means, log_scales, logits);
-        let n = 40_000;
-        let big = MixtureParams {
-            means: p.means.expand([n, 1, 2], false),
-            log_scales: p.log_scales.expand([n, 1, 2], false),
-            logits: p.logits.expand([n, 1, 2], false),
-        };
+        let big = repeated(params(means, log_scales, logits), 40_000);
         let s = Vec::<f32>::try_from(mixture_component_mean(&big).flatten(0, -1)).unwrap();
         let first = s.iter().filter(|&&v| (f64::from(v) - means[0]).abs() < 1e-6).count();
         let second = s.iter().filter(|&&v| (f64::from(v) - means[1]).abs() < 1e-6).count();
