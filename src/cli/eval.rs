@@ -2,12 +2,13 @@
 //! and the localisation check of an image trunk.
 use super::default_workers;
 use super::options::{FrameArgs, parse_named};
-use super::print::{print_probe, print_summary};
+use super::print::{print_grip_probe, print_probe, print_summary};
 use anyhow::{Result, bail};
 use oneshot_lab::data::augment::Augmentation;
 use oneshot_lab::data::pairs::{PairDataset, Split, Windows};
 use oneshot_lab::device::parse_device;
 use oneshot_lab::eval::config::Control;
+use oneshot_lab::eval::grip_probe::grip_probe;
 use oneshot_lab::eval::history::HistoryMode;
 use oneshot_lab::eval::layouts::{Layouts, training_seeds};
 use oneshot_lab::eval::probe::open_loop;
@@ -126,7 +127,7 @@ pub struct ProbeArgs {
     /// Agent (Panda) collection folder.
     #[arg(long)]
     pub agents: PathBuf,
-    /// Windows to probe.
+    /// Windows to probe (with `--at-grip`, agent trajectories).
     #[arg(long, default_value_t = 64)]
     pub windows: usize,
     /// Probe training windows instead of validation ones.
@@ -135,6 +136,10 @@ pub struct ProbeArgs {
     /// Probe windows at the start of each trajectory (the approach to the object) instead of training's draws.
     #[arg(long)]
     pub from_start: bool,
+    /// Probe the steps around each expert's lift instead: what the head gives the next command once the fingers
+    /// have closed on the object, seen with 1 to `eval.history_frames` (the authors' 5) frames.
+    #[arg(long, conflicts_with = "from_start")]
+    pub at_grip: bool,
     /// Seed of the windows drawn.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -263,6 +268,11 @@ pub fn probe(a: ProbeArgs) -> Result<()> {
     let trained = load_trained(&a.policy, a.checkpoint, parse_device(&a.device)?)?;
     let data = PairDataset::open(&a.demos, &a.agents, trained.summary.train.val_fraction, None)?;
     let split = if a.train_split { Split::Train } else { Split::Val };
+    if a.at_grip {
+        let history = EvalConfig::default().history_frames;
+        print_grip_probe(&grip_probe(&trained, &data, split, a.windows, history, 16, a.seed)?);
+        return Ok(());
+    }
     let placement = if a.from_start { Windows::FromStart } else { trained.summary.train.windows() };
     print_probe(&open_loop(&trained, &data, split, placement, a.windows, 16, a.seed)?);
     Ok(())

@@ -1,5 +1,6 @@
 //! Tables the commands print: an evaluation's success rates, the open-loop probe's errors and a report's Table 1.
 use anyhow::{Context, Result};
+use oneshot_lab::eval::grip_probe::{GripProbe, GripRow};
 use oneshot_lab::eval::probe::ProbeReport;
 use oneshot_lab::eval::summary::{EvalSummary, percent};
 use oneshot_lab::sim::action::{ACTION_DIM, ACTION_RANGES};
@@ -49,6 +50,53 @@ pub fn print_summary(s: &EvalSummary) {
             h.lost, h.let_go, h.slipped
         );
     }
+}
+
+/// Prints the grip probe's rows: by step around the expert's lift, then the lift and the rest by frames seen.
+pub fn print_grip_probe(r: &GripProbe) {
+    println!(
+        "grip probe: {} agent trajectories from the close to one step past the lift ({} left out: no close or no lift)",
+        r.trajectories, r.skipped
+    );
+    println!(
+        "the next command: expert's, and the head's (a sample's probability, whether the most likely action does)"
+    );
+    let header = |first: &str| {
+        println!(
+            "{first:<14} {:>7} {:>13} {:>10} {:>11} {:>10} {:>11}",
+            "queries", "expert lifts", "P(lift)", "mode lifts", "P(open)", "mode opens"
+        )
+    };
+    let line = |label: String, g: &GripRow| {
+        let pct = |v: f64| format!("{:.1}%", 100.0 * v);
+        println!(
+            "{label:<14} {:>7} {:>13} {:>10} {:>11} {:>10} {:>11}",
+            g.queries,
+            pct(g.expert_lifts),
+            pct(g.lift_probability),
+            pct(g.mode_lifts),
+            pct(g.open_probability),
+            pct(g.mode_opens)
+        )
+    };
+    header("step vs lift");
+    for (offset, g) in &r.by_step {
+        line(format!("{offset:+}"), g);
+    }
+    for (name, rows) in
+        [("the lift step (0)", &r.lift_by_frames), ("resting steps (close < step < lift)", &r.rest_by_frames)]
+    {
+        println!("{name}, by frames in the window");
+        header("frames");
+        for (k, g) in rows.iter().enumerate().filter(|(_, g)| g.queries > 0) {
+            line(format!("{}", k + 1), g);
+        }
+    }
+    let [none, some, all] = r.bottom_mode_lifts;
+    println!(
+        "trajectories whose most likely action lifts at none / some / all of their steps from after the close \
+         through the lift (every window length): {none} / {some} / {all}"
+    );
 }
 
 /// Prints the report with absolute units beside the normalised ones.

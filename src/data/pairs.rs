@@ -241,6 +241,13 @@ impl PairDataset {
         })
     }
 
+    /// The agent trajectories of `split`, in collection order.
+    pub fn agents_of(&self, split: Split) -> Vec<usize> {
+        let mut all: Vec<usize> = self.agent_index[split as usize].iter().flatten().copied().collect();
+        all.sort_unstable();
+        all
+    }
+
     /// Number of (demonstrator video, agent trajectory) pairs in `split`.
     pub fn pairs(&self, split: Split) -> usize {
         let s = split as usize;
@@ -348,6 +355,16 @@ impl PairDataset {
         let start = match windows {
             Windows::Training { start } => window_start(rng, agent.len(), model.agent_frames, start),
             Windows::FromStart => 0,
+            Windows::At(start) => {
+                if start + model.agent_frames > agent.len() {
+                    bail!(
+                        "a window of {} frames at frame {start} does not fit agent trajectory {agent_k} ({} frames)",
+                        model.agent_frames,
+                        agent.len()
+                    );
+                }
+                start
+            }
         };
         let agent_frames: Vec<(usize, usize, AugmentDraw)> =
             (0..model.agent_frames).map(|k| (1, start + k, draw(rng))).collect();
@@ -400,6 +417,8 @@ pub enum Windows {
     Training { start: f64 },
     /// At the trajectory's start: the approach to the object, where the action depends most on where it lies.
     FromStart,
+    /// Starting at this frame (the probes'); a window that does not fit the trajectory is an error.
+    At(usize),
 }
 
 /// How a sample carries its frames.

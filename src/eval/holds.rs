@@ -13,7 +13,7 @@ const BETWEEN: f64 = 0.03;
 /// ... and at most this far beyond it along the fingers (the expert's grips hold it 2-3 cm beyond).
 const ALONG: f64 = 0.06;
 /// A command that targets the gripper this much higher than it is asks for a lift (metres).
-const LIFT: f64 = 0.05;
+pub const LIFT: f64 = 0.05;
 /// The gripper has risen from a hold once it is this much higher (metres).
 const RISEN: f64 = 0.04;
 

@@ -9,6 +9,7 @@ pub mod actor;
 pub mod choice;
 pub mod config;
 pub mod grasps;
+pub mod grip_probe;
 pub mod history;
 pub mod holds;
 pub mod layouts;

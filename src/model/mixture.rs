@@ -130,6 +130,15 @@ pub fn mixture_component_mean(p: &MixtureParams) -> Tensor {
     p.means.gather(-1, &k, false).squeeze_dim(-1).clamp(-1.0, 1.0)
 }
 
+/// Each entry's probability under the mixture that dimension `dim` of its action exceeds `threshold` (one value
+/// per entry, shaped as the entries `[..]`, normalised units inside (-1, 1)): the share of samples that would.
+pub fn mixture_above(p: &MixtureParams, dim: i64, threshold: &Tensor) -> Tensor {
+    let of_dim = |t: &Tensor| t.select(-2, dim).to_kind(Kind::Float);
+    let weights = of_dim(&p.logits).softmax(-1, Kind::Float);
+    let scaled = (of_dim(&p.means) - threshold.to_kind(Kind::Float).unsqueeze(-1)) * (-of_dim(&p.log_scales)).exp();
+    (weights * scaled.sigmoid()).sum_dim_intlist([-1i64].as_slice(), false, Kind::Float)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -214,5 +223,27 @@ mod tests {
         assert_eq!(first + second, s.len());
         let share = first as f64 / s.len() as f64;
         assert!((share - 0.25).abs() < 0.01, "first component's share {share}");
+    }
+
+    #[test]
+    fn the_probability_above_a_threshold_is_the_share_of_samples_above_it() {
+        tch::manual_seed(5);
+        let (means, log_scales, logits) = ([0.3, -0.4], [-2.0, -2.5], [0.0, 2.0f64.ln()]);
+        let one = params(means, log_scales, logits);
+        let n = 100_000;
+        let samples = mixture_sample(&repeated(params(means, log_scales, logits), n));
+        for threshold in [-0.6, -0.4, 0.0, 0.3, 0.45] {
+            let p = mixture_above(&one, 0, &Tensor::from_slice(&[threshold as f32]).view([1])).double_value(&[0]);
+            let share = samples.gt(threshold).to_kind(Kind::Double).mean(Kind::Double).double_value(&[]);
+            assert!((p - share).abs() < 0.01, "threshold {threshold}: {p} against the samples' {share}");
+        }
+        // By hand from the logistic CDFs, for two thresholds at once.
+        let by_hand = |x: f64| {
+            let w = [1.0 / 3.0, 2.0 / 3.0];
+            (0..2).map(|k| w[k] * sigmoid((means[k] - x) / log_scales[k].exp())).sum::<f64>()
+        };
+        let two = mixture_above(&one, 0, &Tensor::from_slice(&[0.3f32, -0.05]).view([2])).to_kind(Kind::Double);
+        let two = Vec::<f64>::try_from(&two).unwrap();
+        assert!((two[0] - by_hand(0.3)).abs() < 1e-5 && (two[1] - by_hand(-0.05)).abs() < 1e-5, "{two:?}");
     }
 }

@@ -4,6 +4,7 @@ use crate::helpers::{HANG_GUARD, torch_rng, wait_for};
 use oneshot_lab::data::collect::collect;
 use oneshot_lab::data::collect_config::{CollectConfig, CollectSettings, LayoutSharing};
 use oneshot_lab::data::pairs::{FrameForm, PairDataset, Split, Windows};
+use oneshot_lab::eval::grip_probe::grip_probe;
 use oneshot_lab::eval::probe::{PositionErrors, open_loop};
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
@@ -97,6 +98,28 @@ fn training_on_collected_data_lowers_validation_bc_and_checks_context_length() {
         assert!((mean_of(|p| p.mode) - report.mode[d]).abs() < 1e-6, "dimension {d}");
         assert!((mean_of(|p| p.mean_baseline) - report.mean_baseline[d]).abs() < 1e-6, "dimension {d}");
     }
+
+    // The grip probe reads every step from each expert's close to one past its lift, each with 1 to 5 frames:
+    // the lift step is the first whose own action lifts, so the expert lifts there and at no step before it.
+    let grip = grip_probe(&trained, &data, Split::Train, 4, 5, 3, 0).unwrap();
+    assert_eq!(grip.trajectories, 4, "{grip:?}");
+    let lift = grip.by_step.iter().find(|(offset, _)| *offset == 0).expect("a lift row").1;
+    assert_eq!((lift.queries, lift.expert_lifts), (4 * 5, 1.0), "{grip:?}");
+    for (offset, row) in &grip.by_step {
+        assert!(*offset >= -3 && *offset <= 1, "the experts rise 3 steps after closing at the latest: {offset}");
+        if *offset < 0 {
+            assert_eq!(row.expert_lifts, 0.0, "step {offset}");
+        }
+        for p in [row.lift_probability, row.mode_lifts, row.open_probability, row.mode_opens] {
+            assert!((0.0..=1.0).contains(&p), "step {offset}: {row:?}");
+        }
+    }
+    assert_eq!(grip.lift_by_frames.len(), 5);
+    assert!(grip.lift_by_frames.iter().all(|row| row.queries == 4), "each lift seen with 1 to 5 frames");
+    assert_eq!(grip.bottom_mode_lifts.iter().sum::<usize>(), 4);
+    assert_eq!(grip, grip_probe(&trained, &data, Split::Train, 4, 5, 3, 0).unwrap(), "deterministic by seed");
+    let err = grip_probe(&trained, &data, Split::Train, 4, 7, 3, 0).unwrap_err();
+    assert!(err.to_string().contains("model.agent_frames"), "{err}");
 
     // Interrupted after 60 steps and resumed: the same weights as the uninterrupted run, bit for bit.
     let split = dir.join("split");
