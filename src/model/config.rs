@@ -210,6 +210,10 @@ pub struct ModelConfig {
     /// `concat_state` does; on the architectures with the paper's heads. A departure: their experiments leave it
     /// off (false), so the policy sees only pictures.
     pub concat_state: bool,
+    /// With `concat_state`, the fingers' change since the window's previous frame joins the state (none at the
+    /// window's first frame, as after the agent's window is cleared in evaluation), so one frame can show
+    /// whether a grip has stopped closing. A departure of this tool's (false: the authors' state alone).
+    pub finger_motion: bool,
     /// Starting weights of the object attention (`object_attention.*`), set by the train stage from a `[pretrain]`
     /// whose `object_attention_steps` trained one; not an experiment-file key.
     #[serde(skip)]
@@ -251,6 +255,7 @@ impl Default for ModelConfig {
             object_attention_query: ObjectAttentionQuery::Embedding,
             pose_head_input: PoseHeadInput::Joint,
             concat_state: false,
+            finger_motion: false,
             pretrained_object_attention: None,
         }
     }
@@ -323,6 +328,9 @@ impl ModelConfig {
                 "model.concat_state = true needs an architecture that ends in the paper's heads, not {:?}",
                 self.architecture.0
             );
+        }
+        if self.finger_motion && !self.concat_state {
+            bail!("model.finger_motion = true needs model.concat_state = true: it adds to the state the network reads");
         }
         if self.task_head && !registration.paper_heads {
             bail!(

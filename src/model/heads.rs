@@ -4,7 +4,7 @@ use super::config::{ModelConfig, PoseHeadInput};
 use super::mixture::{MixtureHead, MixtureSpec};
 use super::output::{PointPrediction, PolicyOutput};
 use crate::sim::action::ACTION_RANGES;
-use crate::sim::env::STATE_DIM;
+use crate::sim::env::{STATE_DIM, STATE_FINGERS};
 use crate::sim::task::NUM_TASKS;
 use tch::nn::{self, Module, ModuleT};
 use tch::{Kind, Tensor};
@@ -146,6 +146,8 @@ pub struct PolicyHeads {
     task_head: Option<nn::Linear>,
     /// `model.concat_state`: the robot's state joins each frame's features where the action is read.
     concat_state: bool,
+    /// `model.finger_motion`: the fingers' change since the previous frame joins it too.
+    finger_motion: bool,
 }
 
 impl PolicyHeads {
@@ -153,7 +155,12 @@ impl PolicyHeads {
     /// the object attention's positions), under `vs` (parameters `policy`, `inverse`, `action_head`,
     /// `point_head`, and `pose_head` and `task_head` when the model has them).
     pub fn new(vs: &nn::Path, latent: i64, frame: i64, object: i64, config: &ModelConfig) -> PolicyHeads {
-        let joint = latent + frame + if config.concat_state { STATE_DIM as i64 } else { 0 };
+        let state = match (config.concat_state, config.finger_motion) {
+            (false, _) => 0,
+            (true, false) => STATE_DIM as i64,
+            (true, true) => STATE_DIM as i64 + 2,
+        };
+        let joint = latent + frame + state;
         let pose_width = match config.pose_head_input {
             PoseHeadInput::Joint => joint,
             PoseHeadInput::Object => latent + object,
@@ -176,6 +183,7 @@ impl PolicyHeads {
                 .task_head
                 .then(|| nn::linear(vs / "task_head", latent, NUM_TASKS as i64, Default::default())),
             concat_state: config.concat_state,
+            finger_motion: config.finger_motion,
         }
     }
 
@@ -190,7 +198,13 @@ impl PolicyHeads {
         let task_per_frame = task.unsqueeze(1).expand([b, ta, -1], false);
         let joint = match (self.concat_state, states) {
             (false, _) => Tensor::cat(&[&task_per_frame, frames], -1),
-            (true, Some(s)) => Tensor::cat(&[&task_per_frame, frames, &s.to_kind(frames.kind())], -1),
+            (true, Some(s)) => {
+                let s = match self.finger_motion {
+                    false => s.shallow_clone(),
+                    true => Tensor::cat(&[s, &finger_motion(s)], -1),
+                };
+                Tensor::cat(&[&task_per_frame, frames, &s.to_kind(frames.kind())], -1)
+            }
             (true, None) => panic!("model.concat_state: the network needs the robot's state at each agent frame"),
         };
         let hidden = self.policy.forward(&joint).relu();
@@ -248,9 +262,37 @@ pub fn point_nll(p: &PointPrediction, target: &Tensor) -> Tensor {
     nll.mean(Kind::Float)
 }
 
+/// How much a change of the fingers' state entries (each a joint over its 0.04 m travel) is magnified: a finger
+/// that moved 5 mm since the previous frame reads 1.
+const FINGER_MOTION_SCALE: f64 = 8.0;
+
+/// Each frame's change of the two finger entries of the robot's state `[B, Ta, STATE_DIM]` since the window's
+/// previous frame, scaled (`[B, Ta, 2]`; zero at the first frame, which has no previous one).
+fn finger_motion(states: &Tensor) -> Tensor {
+    let fingers = states.narrow(-1, STATE_FINGERS as i64, 2);
+    let ta = fingers.size()[1];
+    let first = fingers.narrow(1, 0, 1).zeros_like();
+    let change = fingers.narrow(1, 1, ta - 1) - fingers.narrow(1, 0, ta - 1);
+    Tensor::cat(&[first, change], 1) * FINGER_MOTION_SCALE
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn finger_motion_is_the_scaled_change_since_the_previous_frame_and_none_at_the_first() {
+        let states = Tensor::zeros([1, 3, STATE_DIM as i64], (Kind::Float, tch::Device::Cpu));
+        // The first finger closes by 0.25 of its travel (1 cm) between frames 0 and 1, then stays; the second
+        // stays; the other entries change without moving anything.
+        let _ = states.narrow(2, STATE_FINGERS as i64, 1).narrow(1, 0, 1).fill_(1.0);
+        let _ = states.narrow(2, STATE_FINGERS as i64, 1).narrow(1, 1, 2).fill_(0.75);
+        let _ = states.narrow(2, 0, 3).narrow(1, 2, 1).fill_(5.0);
+        let m = Vec::<f32>::try_from(finger_motion(&states).view([-1])).unwrap();
+        assert_eq!(m.len(), 6);
+        let expected = [0.0, 0.0, -2.0, 0.0, 0.0, 0.0];
+        assert!(m.iter().zip(expected).all(|(a, b)| (a - b).abs() < 1e-6), "{m:?}");
+    }
 
     #[test]
     fn spatial_softmax_finds_a_peak() {

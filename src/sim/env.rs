@@ -157,6 +157,9 @@ pub const STATE_DIM: usize = 9;
 /// continuous, in the authors' range: [`state_angle_axis`]).
 pub const STATE_VERSION: u32 = 2;
 
+/// Where the two finger joints lie in [`robot_state`] (each divided by its travel, 0.04 m).
+pub const STATE_FINGERS: usize = 7;
+
 /// The robot's own state as a network reads it (`model.concat_state`, the authors' `ee_aa` and `gripper_qpos`):
 /// the end-effector position (metres), its orientation (`eef_rot` in the action's form, read in the authors'
 /// continuous form: angle / pi, axis) and the two finger joints divided by their travel (the Panda's run 0..0.04

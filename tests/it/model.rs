@@ -513,6 +513,20 @@ fn with_concat_state_the_action_reads_the_robots_state_at_its_own_frame() {
     assert!(without > 2f64.ln() / 8.0 - 0.01, "the plain model cannot tell the samples apart: {without}");
     assert!(with_state < without - 0.03, "bc with the state {with_state}, without {without}");
 
+    // With `model.finger_motion` the fingers' change joins the state: closing them at frame 5 moves the actions of
+    // frames 5 and 6 (the change into and out of it), not the earlier ones; the key needs the state.
+    let moving = ModelConfig { finger_motion: true, ..model.clone() };
+    let (_, motion) = build_policy(&moving, Device::Cpu).unwrap();
+    let at_five = states.copy();
+    let _ = at_five.narrow(1, 5, 1).narrow(2, 7, 2).fill_(0.0);
+    let a = motion.forward_with_states(&context, &agent, &states, false).actions.means;
+    let b = motion.forward_with_states(&context, &agent, &at_five, false).actions.means;
+    let moved = |t: i64| (a.narrow(1, t, 1) - b.narrow(1, t, 1)).abs().max().double_value(&[]);
+    assert!((0..5).all(|t| moved(t) < 1e-6), "frames before the change");
+    assert!(moved(5) > 1e-5 && moved(6) > 1e-5, "{} {}", moved(5), moved(6));
+    let err = ModelConfig { finger_motion: true, ..tiny() }.validate().unwrap_err();
+    assert!(err.to_string().contains("model.finger_motion") && err.to_string().contains("model.concat_state"), "{err}");
+
     // Without the key the state is ignored; the baselines without the paper's heads refuse it.
     let c = (images(1, 4), images(1, 7));
     let s = Tensor::randn([1, 7, STATE_DIM as i64], (Kind::Float, Device::Cpu));

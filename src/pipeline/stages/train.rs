@@ -40,10 +40,11 @@ fn identity(t: &TrainConfig) -> TrainConfig {
 }
 
 /// Settings added after train keys existed, left out of them at their earlier value.
-fn neutral() -> [(&'static str, Value); 15] {
+fn neutral() -> [(&'static str, Value); 16] {
     [
         ("model.freeze_backbone", json!(false)),
         ("model.concat_state", json!(false)),
+        ("model.finger_motion", json!(false)),
         ("model.pose_head", json!(false)),
         ("model.task_head", json!(false)),
         ("model.object_attention", json!(false)),
