@@ -55,7 +55,7 @@ pub fn print_summary(s: &EvalSummary) {
 /// Prints the grip probe's rows: by step around the expert's lift, then the lift and the rest by frames seen.
 pub fn print_grip_probe(r: &GripProbe) {
     println!(
-        "grip probe: {} agent trajectories from the close to one step past the lift ({} left out: no close or no lift)",
+        "grip probe: {} agent trajectories from the close to one step past the lift ({} left out: no close, no lift or no demonstration of the task)",
         r.trajectories, r.skipped
     );
     println!(

@@ -52,7 +52,8 @@ pub struct GripRow {
 /// The probe's rows.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GripProbe {
-    /// Trajectories probed (each with a close and a lift), and those left out for lacking either.
+    /// Trajectories probed (each with a close, a lift and a demonstration of its task), and those left out for
+    /// lacking one.
     pub trajectories: usize,
     pub skipped: usize,
     /// By step relative to the expert's lift (0: the step whose action lifts; the most negative, its close), all
