@@ -265,6 +265,9 @@ pub fn eval(a: EvalArgs) -> Result<()> {
 
 /// Prints the open-loop errors of a trained policy per action dimension.
 pub fn probe(a: ProbeArgs) -> Result<()> {
+    if a.windows == 0 {
+        bail!("--windows (0) must be at least 1");
+    }
     let trained = load_trained(&a.policy, a.checkpoint, parse_device(&a.device)?)?;
     let data = PairDataset::open(&a.demos, &a.agents, trained.summary.train.val_fraction, None)?;
     let split = if a.train_split { Split::Train } else { Split::Val };

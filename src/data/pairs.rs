@@ -200,6 +200,11 @@ impl PairDataset {
         (&self.demos[source[0]], &self.agents[source[1]])
     }
 
+    /// Agent trajectory `k` of the collection.
+    pub fn agent(&self, k: usize) -> &Trajectory {
+        &self.agents[k]
+    }
+
     /// Holds decoded the frames of as many whole trajectories as fit in `budget` bytes, the agent's first (a
     /// sample shows more agent frames than demonstrator frames), and drops the rest: those decode their JPEG on
     /// every use. A budget of 0 decodes every frame on use.

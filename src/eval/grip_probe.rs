@@ -173,7 +173,7 @@ pub fn grip_probe(
         if probed == trajectories {
             break;
         }
-        let (_, trajectory) = data.trajectory([0, agent]);
+        let trajectory = data.agent(agent);
         let Some((close, lift)) = close_and_lift(&trajectory.actions, &trajectory.eef_pos) else {
             skipped += 1;
             continue;

@@ -42,6 +42,20 @@ fn zero_instances_per_task_is_an_error_naming_the_flag() {
 }
 
 #[test]
+fn probing_zero_windows_is_an_error_naming_the_flag() {
+    for extra in [&[][..], &["--at-grip"][..]] {
+        let out = oneshot()
+            .args(["probe", "--policy", "p", "--demos", "d", "--agents", "a", "--windows", "0"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("--windows (0)"), "{err}");
+    }
+}
+
+#[test]
 fn a_malformed_aim_offset_is_an_error_naming_the_value() {
     for (value, named) in [("2", "`2` is not ACROSS,SIDEWAYS"), ("1,x", "`x` in `1,x`"), ("0,11", "`11` in `0,11`")] {
         let out = oneshot().args(["expert-check", "--robot", "panda", "--aim-offset", value]).output().unwrap();
