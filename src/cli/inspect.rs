@@ -1,5 +1,6 @@
 //! `why`, `status`, `query`, `gc` and `report`: looking into (and tidying) the results store.
 use super::options::{OutputFormat, ReadStoreDir, StoreArgs};
+use super::stage_progress::{self, Progress};
 use anyhow::{Result, bail};
 use oneshot_lab::config::{Experiment, overrides};
 use oneshot_lab::pipeline::code;
@@ -234,8 +235,7 @@ pub fn status(a: StatusArgs) -> Result<()> {
         .map(|r| {
             // A holder on this machine whose process is gone died without recording it: the next run takes over.
             let live = if r.host == this_host { Some(alive(r.pid)) } else { None };
-            let progress =
-                (r.kind == "train").then(|| training_progress(&store, &a.store, &r.key, r.started_at)).flatten();
+            let progress = stage_progress(&store, &a.store, &r.key, &r.kind, r.started_at);
             (r, live, progress)
         })
         .collect();
@@ -251,7 +251,9 @@ pub fn status(a: StatusArgs) -> Result<()> {
             "slurm_jobs": slurm.live.iter().map(|(job, entry)| detached::describe(job, entry)).collect::<Vec<_>>(),
             "running": running.iter().map(|(r, live, progress)| serde_json::json!({
                 "kind": r.kind, "key": r.key, "host": r.host, "pid": r.pid,
-                "seconds": now() - r.started_at, "process_alive": live, "training": progress,
+                "seconds": now() - r.started_at, "process_alive": live,
+                "training": progress.as_ref().and_then(Progress::training),
+                "pretraining": progress.as_ref().and_then(Progress::pretraining),
             })).collect::<Vec<_>>(),
             "recent_failures": failures.iter()
                 .map(|f| serde_json::json!({ "kind": f.kind, "key": f.key, "error": f.error }))
@@ -298,53 +300,22 @@ pub fn status(a: StatusArgs) -> Result<()> {
     Ok(())
 }
 
-/// Where a running training stands, from the loss curve it keeps in its staging folder (readable while it
-/// runs, also from another machine on a shared filesystem): its latest curve point against its total steps.
-#[derive(serde::Serialize)]
-struct TrainingProgress {
-    step: u64,
-    steps: u64,
-    train_bc: Option<f64>,
-    val_bc: Option<f64>,
-    steps_per_second: f64,
-    seconds_left: Option<f64>,
-}
-
-impl std::fmt::Display for TrainingProgress {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let bc = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
-        write!(
-            f,
-            "step {} of {}: train bc {}, val bc {}, {:.2} steps/s",
-            self.step,
-            self.steps,
-            bc(self.train_bc),
-            bc(self.val_bc),
-            self.steps_per_second
-        )?;
-        match self.seconds_left {
-            Some(s) => write!(f, ", about {:.0} min left", s / 60.0),
-            None => Ok(()),
+/// Where the running stage `key` of `kind` stands, from its staging folder: none for kinds that keep no record
+/// there as they run, or before their first.
+fn stage_progress(store: &Store, dir: &ReadStoreDir, key: &str, kind: &str, started_at: f64) -> Option<Progress> {
+    let inputs = one_stage(store, dir, key).ok()?.inputs;
+    let staging = staging_dir(&dir.store, key);
+    let steps = |section: &str, name: &str| inputs.get(section)?.get(name)?.as_u64();
+    match kind {
+        "train" => {
+            stage_progress::training(&staging, steps("train", "steps")?, started_at, now()).map(Progress::Training)
         }
+        "pretrain" => {
+            let phases = (steps("pretrain", "steps")?, steps("pretrain", "object_attention_steps").unwrap_or(0));
+            stage_progress::pretraining(&staging, phases, started_at, now()).map(Progress::Pretraining)
+        }
+        _ => None,
     }
-}
-
-fn training_progress(store: &Store, dir: &ReadStoreDir, key: &str, started_at: f64) -> Option<TrainingProgress> {
-    let stage = one_stage(store, dir, key).ok()?;
-    let steps = stage.inputs.get("train")?.get("steps")?.as_u64()?;
-    let curve = staging_dir(&dir.store, key).join(oneshot_lab::train::CURVE_FILE);
-    let points = oneshot_lab::train::curve::read(&curve, u64::MAX).ok()?;
-    let step = points.iter().map(|p| p.step).max().unwrap_or(0);
-    let latest = |split: &str| points.iter().filter(|p| p.split == split).max_by_key(|p| p.step).map(|p| p.bc);
-    let rate = step as f64 / (now() - started_at).max(1.0);
-    Some(TrainingProgress {
-        step,
-        steps,
-        train_bc: latest("train"),
-        val_bc: latest("val"),
-        steps_per_second: rate,
-        seconds_left: (rate > 0.0).then(|| steps.saturating_sub(step) as f64 / rate),
-    })
 }
 
 fn text(v: &serde_json::Value) -> String {

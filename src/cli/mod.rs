@@ -12,6 +12,7 @@ pub mod options;
 pub mod orchestrate;
 pub mod print;
 pub mod reference;
+pub mod stage_progress;
 pub mod train;
 pub mod world;
 

@@ -95,13 +95,17 @@ pub fn latest(dir: &Path) -> Result<Option<(u64, PathBuf)>> {
     let mut best = None;
     for entry in std::fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))? {
         let path = entry?.path();
-        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-        let step = name.strip_prefix("step_").and_then(|s| s.strip_suffix(".safetensors")).and_then(|s| s.parse().ok());
-        if let Some(step) = step
+        if let Some(step) = step_of(&path)
             && best.as_ref().is_none_or(|(b, _)| step > *b)
         {
             best = Some((step, path));
         }
     }
     Ok(best)
+}
+
+/// The step of the checkpoint file at `path` ([`path_for`]'s name), or none for any other file.
+pub fn step_of(path: &Path) -> Option<u64> {
+    let name = path.file_name()?.to_str()?;
+    name.strip_prefix("step_")?.strip_suffix(".safetensors")?.parse().ok()
 }

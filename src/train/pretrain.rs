@@ -59,6 +59,9 @@ pub struct LocaliseConfig {
     pub attention_shape: (i64, i64),
     /// Where to write the trained object attention's weights (the policy's `object_attention.*` names).
     pub attention_out: Option<PathBuf>,
+    /// Where to keep the curve as it is measured (JSON lines, rewritten at each measurement), so that a running
+    /// pretraining shows how far it is.
+    pub curve_out: Option<PathBuf>,
 }
 
 /// Heads and inner width of the check's object attention (`localise --object-attention`).
@@ -140,6 +143,7 @@ impl PretrainConfig {
             init_trunk: None,
             attention_shape: ATTENTION_SHAPE,
             attention_out: None,
+            curve_out: None,
         }
     }
 
@@ -168,7 +172,7 @@ impl PretrainConfig {
 }
 
 /// Mean absolute errors of the target positions (x, y, in metres, averaged over objects) at one step.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LocaliseErrors {
     pub step: u64,
     pub train: [f64; 2],
@@ -323,6 +327,9 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
     for step in 0..=config.steps {
         if step % config.report_every == 0 || step == config.steps {
             curve.push(LocaliseErrors { step, train: score(&train), held_out: score(&held_out) });
+            if let Some(path) = &config.curve_out {
+                write_curve(path, &curve)?;
+            }
         }
         if step == config.steps {
             break;
@@ -364,6 +371,25 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         mean_baseline,
         curve,
     })
+}
+
+/// Writes `curve` to `path` as JSON lines, atomically.
+fn write_curve(path: &Path, curve: &[LocaliseErrors]) -> Result<()> {
+    let mut text = String::new();
+    for point in curve {
+        text += &serde_json::to_string(point)?;
+        text.push('\n');
+    }
+    crate::fsio::write_atomic(path, text)
+}
+
+/// The curve a localisation run kept at `path` (`LocaliseConfig::curve_out`).
+pub fn read_curve(path: &Path) -> Result<Vec<LocaliseErrors>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .map(|(i, line)| serde_json::from_str(line).with_context(|| format!("{}:{}", path.display(), i + 1)))
+        .collect()
 }
 
 /// Writes the variables of `vs` whose names start with `prefix` to `path`, the prefix kept or dropped (the trunk's

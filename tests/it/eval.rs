@@ -177,6 +177,7 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         init_trunk: None,
         attention_shape: oneshot_lab::train::pretrain::ATTENTION_SHAPE,
         attention_out: None,
+        curve_out: None,
     };
     let trunk_file = dir.join("trunks").join("trunk.safetensors");
     let mut last_train = vec![];
@@ -188,8 +189,13 @@ fn the_localisation_check_fits_grasp_and_object_positions_of_its_training_frames
         (LocaliseTarget::Grasp, None, true),
     ] {
         let trunk_out = (target == LocaliseTarget::Objects && augmentation.is_none()).then(|| trunk_file.clone());
-        let run = LocaliseConfig { target, trunk_out, augmentation, object_attention, ..config.clone() };
+        // The object attention's run keeps its curve as it goes: what it returns, point for point.
+        let curve_out = object_attention.then(|| dir.join("attention_curve.jsonl"));
+        let run = LocaliseConfig { target, trunk_out, augmentation, object_attention, curve_out, ..config.clone() };
         let r = localise(&dir.join("panda"), &run, tch::Device::Cpu).unwrap();
+        if let Some(path) = &run.curve_out {
+            assert_eq!(oneshot_lab::train::pretrain::read_curve(path).unwrap(), r.curve);
+        }
         last_train.push(r.curve[3].train);
         assert_eq!((r.train_frames, r.held_out_frames, r.height, r.width), (16, 4, 32, 40));
         assert_eq!(r.curve.iter().map(|e| e.step).collect::<Vec<_>>(), [0, 50, 100, 150]);

@@ -63,6 +63,23 @@ fn db(store: &Path) -> Connection {
     Connection::open(store.join("oneshot.sqlite")).unwrap()
 }
 
+/// The running attempts `status --format json` lists for the store at `store`.
+fn running_attempts(store: &Path) -> Vec<serde_json::Value> {
+    let out = oneshot().args(["status", "--store", store.to_str().unwrap(), "--format", "json"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let status: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    status["running"].as_array().unwrap().clone()
+}
+
+/// The two running trainings of the store at `store` as `status` lists them, once both show their progress.
+fn both_trainings(store: &Path) -> Vec<serde_json::Value> {
+    wait_for(HANG_GUARD, Duration::from_millis(100), || {
+        let running = running_attempts(store);
+        let shown = running.iter().filter(|r| r["kind"] == "train" && !r["training"].is_null()).count();
+        (shown == 2).then(|| running.clone()).ok_or_else(|| format!("not both trainings shown yet: {running:?}"))
+    })
+}
+
 fn count(conn: &Connection, sql: &str) -> i64 {
     conn.query_row(sql, [], |r| r.get(0)).unwrap()
 }
@@ -379,6 +396,11 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     let mut child = start();
     wait_for_training(&mut child, 0);
     assert_eq!(stage_processes().len(), 2, "the trainings run in processes of their own");
+    // `status` follows both trainings from their staging folders: fresh starts here.
+    for attempt in both_trainings(&store) {
+        let progress = &attempt["training"];
+        assert_eq!((progress["steps"].as_u64(), progress["resumed_from"].as_u64()), (Some(400), Some(0)), "{attempt}");
+    }
     unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
     let stopped = child.wait_with_output().unwrap();
     assert!(!stopped.status.success());
@@ -398,6 +420,12 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     let before = latest_staged_checkpoint(&store);
     let mut child = start();
     wait_for_training(&mut child, before);
+    // Resumed, each from the checkpoint its stopped attempt wrote: `status` counts its pace from there.
+    for attempt in &both_trainings(&store) {
+        let progress = &attempt["training"];
+        let (step, resumed) = (progress["step"].as_u64().unwrap(), progress["resumed_from"].as_u64().unwrap());
+        assert!(resumed >= 20 && resumed <= before && step >= resumed, "{attempt}");
+    }
     child.kill().unwrap();
     child.wait().unwrap();
     wait_for(Duration::from_secs(30), Duration::from_millis(100), || {
@@ -486,6 +514,26 @@ fn a_pretrain_section_trains_the_trunk_once_per_seed_and_training_starts_from_it
     std::fs::write(&file, pretrained_experiment("[0, 1]", 8)).unwrap();
     assert_eq!(executed(&run(&file, &store)), 2 * 3);
     assert_eq!(count(&db(&store), "SELECT COUNT(*) FROM stages WHERE kind = 'pretrain' AND status = 'done'"), 4);
+
+    // A long pretraining shows its phase, step and held-out error in `status` while it runs.
+    std::fs::write(&file, pretrained_experiment("[0]", 1_000_000)).unwrap();
+    let mut child = oneshot()
+        .args(["run", file.to_str().unwrap(), "--store", store.to_str().unwrap(), "--workers", "1"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let progress = wait_for(HANG_GUARD, Duration::from_millis(200), || {
+        assert!(child.try_wait().unwrap().is_none(), "the run ended during a million-step pretraining");
+        let running = running_attempts(&store);
+        let pretraining = running.iter().map(|r| &r["pretraining"]).find(|p| !p.is_null()).cloned();
+        pretraining.ok_or_else(|| format!("no pretraining progress yet: {running:?}"))
+    });
+    assert_eq!(progress["phase"], "trunk", "{progress}");
+    assert_eq!((progress["steps"].as_u64(), progress["total"].as_u64()), (Some(1_000_000), Some(1_000_000)));
+    assert!(progress["held_out"].as_array().unwrap().iter().all(|e| e.as_f64().is_some_and(|e| e > 0.0)));
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    child.wait().unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -500,7 +548,21 @@ fn a_pretrained_object_attention_is_where_the_policys_attention_starts() {
     std::fs::write(&file, body.clone() + attending).unwrap();
     run(&file, &store);
     let conn = db(&store);
-    let (_, artifact) = finished_pretrain(&conn, "attention_held_out_error_x");
+    let (pretrain, artifact) = finished_pretrain(&conn, "attention_held_out_error_x");
+    // Each phase's curve is kept in the artifact, its last point the error the store recorded.
+    for (file, metric) in
+        [("trunk_curve.jsonl", "trunk_held_out_error_x"), ("attention_curve.jsonl", "attention_held_out_error_x")]
+    {
+        let curve = oneshot_lab::train::pretrain::read_curve(&store.join(&artifact).join(file)).unwrap();
+        let steps: Vec<u64> = curve.iter().map(|p| p.step).collect();
+        assert_eq!(steps, [0, 1, 2, 3, 4], "{file}");
+        let recorded: f64 = conn
+            .query_row("SELECT value FROM metrics WHERE stage_key = ?1 AND name = ?2", [&pretrain, metric], |r| {
+                r.get(0)
+            })
+            .unwrap();
+        assert_eq!(curve[4].held_out[0], recorded, "{file}");
+    }
     let train_artifact: String = conn
         .query_row("SELECT artifact FROM stages WHERE kind = 'train' AND status = 'done'", [], |r| r.get(0))
         .unwrap();

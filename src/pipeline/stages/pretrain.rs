@@ -4,7 +4,7 @@ use super::{MetricName, RunContext, StageOutputs, Upstream};
 use crate::config::CellConfig;
 use crate::pipeline::graph::Plan;
 use crate::pipeline::key::omit_when;
-use crate::train::pretrain::{PretrainConfig, localise};
+use crate::train::pretrain::{LocaliseConfig, PretrainConfig, localise};
 use anyhow::Result;
 use std::path::{Path, PathBuf};
 
@@ -16,6 +16,12 @@ pub const TRUNK_FILE: &str = "trunk.safetensors";
 
 /// The object attention's weights in a pretrain artifact whose `object_attention_steps` trained one.
 pub const ATTENTION_FILE: &str = "object_attention.safetensors";
+
+/// The trunk phase's held-out errors over its steps (JSON lines of `LocaliseErrors`), kept as they are measured.
+pub const TRUNK_CURVE_FILE: &str = "trunk_curve.jsonl";
+
+/// The object attention phase's held-out errors over its steps, where it has one.
+pub const ATTENTION_CURVE_FILE: &str = "attention_curve.jsonl";
 
 /// What a pretrain stage runs: its settings, the trunk's shape, the seed, the agent collection's key and how many
 /// slots per task it uses of it (none: all; a smaller size of a nested grid uses only its own layouts).
@@ -78,11 +84,14 @@ pub fn attention_of(upstream: &Upstream, key: &str) -> Result<Option<PathBuf>> {
     Ok(Some(upstream.get(key)?.join(ATTENTION_FILE)).filter(|p| p.is_file()))
 }
 
-/// Trains the trunk into `staging` (then, with `object_attention_steps`, the object attention with it); reports
-/// the held-out errors of each phase beside the mean's.
+/// Trains the trunk into `staging` (then, with `object_attention_steps`, the object attention with it), keeping
+/// each phase's curve there as it goes; reports the held-out errors of each phase beside the mean's.
 pub fn run(job: &PretrainJob, upstream: &Upstream, staging: &Path, ctx: &RunContext) -> Result<StageOutputs> {
     let trunk = (job.backbone_width, job.backbone_stages);
-    let config = job.pretrain.localise(trunk, job.per_task, job.seed, Some(staging.join(TRUNK_FILE)));
+    let config = LocaliseConfig {
+        curve_out: Some(staging.join(TRUNK_CURVE_FILE)),
+        ..job.pretrain.localise(trunk, job.per_task, job.seed, Some(staging.join(TRUNK_FILE)))
+    };
     let device = crate::device::parse_device(&ctx.device_or(&job.device))?;
     let agents = upstream.get(&job.agents)?;
     let report = localise(agents, &config, device)?;
@@ -100,6 +109,7 @@ pub fn run(job: &PretrainJob, upstream: &Upstream, staging: &Path, ctx: &RunCont
         staging.join(ATTENTION_FILE),
     );
     if let Some(config) = attention {
+        let config = LocaliseConfig { curve_out: Some(staging.join(ATTENTION_CURVE_FILE)), ..config };
         let report = localise(agents, &config, device)?;
         let last = report.curve.last().expect("the check measures at its last step");
         metrics.extend([
