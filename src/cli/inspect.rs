@@ -235,7 +235,7 @@ pub fn status(a: StatusArgs) -> Result<()> {
         .map(|r| {
             // A holder on this machine whose process is gone died without recording it: the next run takes over.
             let live = if r.host == this_host { Some(alive(r.pid)) } else { None };
-            let progress = stage_progress(&store, &a.store, &r.key, &r.kind, r.started_at);
+            let progress = running_progress(&store, &a.store, &r.key, &r.kind, r.started_at);
             (r, live, progress)
         })
         .collect();
@@ -302,19 +302,18 @@ pub fn status(a: StatusArgs) -> Result<()> {
 
 /// Where the running stage `key` of `kind` stands, from its staging folder: none for kinds that keep no record
 /// there as they run, or before their first.
-fn stage_progress(store: &Store, dir: &ReadStoreDir, key: &str, kind: &str, started_at: f64) -> Option<Progress> {
+fn running_progress(store: &Store, dir: &ReadStoreDir, key: &str, kind: &str, started_at: f64) -> Option<Progress> {
+    if kind != "train" && kind != "pretrain" {
+        return None;
+    }
     let inputs = one_stage(store, dir, key).ok()?.inputs;
     let staging = staging_dir(&dir.store, key);
     let steps = |section: &str, name: &str| inputs.get(section)?.get(name)?.as_u64();
-    match kind {
-        "train" => {
-            stage_progress::training(&staging, steps("train", "steps")?, started_at, now()).map(Progress::Training)
-        }
-        "pretrain" => {
-            let phases = (steps("pretrain", "steps")?, steps("pretrain", "object_attention_steps").unwrap_or(0));
-            stage_progress::pretraining(&staging, phases, started_at, now()).map(Progress::Pretraining)
-        }
-        _ => None,
+    if kind == "train" {
+        stage_progress::training(&staging, steps("train", "steps")?, started_at).map(Progress::Training)
+    } else {
+        let phases = (steps("pretrain", "steps")?, steps("pretrain", "object_attention_steps").unwrap_or(0));
+        stage_progress::pretraining(&staging, phases, started_at).map(Progress::Pretraining)
     }
 }
 

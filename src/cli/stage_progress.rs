@@ -5,18 +5,22 @@ use oneshot_lab::pipeline::stages::pretrain::{ATTENTION_CURVE_FILE, TRUNK_CURVE_
 use oneshot_lab::train::pretrain::read_curve;
 use oneshot_lab::train::{CHECKPOINT_DIR, CURVE_FILE, checkpoint, curve};
 use std::path::Path;
-use std::time::{Duration, UNIX_EPOCH};
+use std::time::UNIX_EPOCH;
 
 /// A running training: its latest curve point or checkpoint against its total steps, and its pace since this
 /// attempt began.
 #[derive(Debug, serde::Serialize)]
 pub struct TrainingProgress {
+    /// The latest step its curve or checkpoints show.
     pub step: u64,
+    /// The steps it trains in all.
     pub steps: u64,
     /// The checkpoint this attempt resumed from (0: it started afresh).
     pub resumed_from: u64,
+    /// The latest training and validation BC on its curve.
     pub train_bc: Option<f64>,
     pub val_bc: Option<f64>,
+    /// This attempt's pace up to its latest record, and the time the steps left would take at it.
     pub steps_per_second: f64,
     pub seconds_left: Option<f64>,
 }
@@ -26,6 +30,7 @@ pub struct TrainingProgress {
 pub struct PretrainingProgress {
     /// `trunk`, or `object attention` (the second phase, where `object_attention_steps` asks for one).
     pub phase: &'static str,
+    /// The phase's latest measured step.
     pub step: u64,
     /// The phase's steps.
     pub steps: u64,
@@ -34,6 +39,7 @@ pub struct PretrainingProgress {
     /// Steps of both phases done and in all.
     pub done: u64,
     pub total: u64,
+    /// The pace up to the latest measurement, and the time the steps left would take at it.
     pub steps_per_second: f64,
     pub seconds_left: Option<f64>,
 }
@@ -101,13 +107,14 @@ impl std::fmt::Display for TrainingProgress {
 
 impl std::fmt::Display for PretrainingProgress {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let all =
+            if self.total > self.steps { format!(" ({} of {} in all)", self.done, self.total) } else { String::new() };
         write!(
             f,
-            "{} step {} of {} (of {} in all): held-out error {:.2} / {:.2} cm, {:.2} steps/s{}",
+            "{} step {} of {}{all}: held-out error {:.2} / {:.2} cm, {:.2} steps/s{}",
             self.phase,
             self.step,
             self.steps,
-            self.total,
             100.0 * self.held_out[0],
             100.0 * self.held_out[1],
             self.steps_per_second,
@@ -116,29 +123,46 @@ impl std::fmt::Display for PretrainingProgress {
     }
 }
 
+/// The time `path` was last written, in seconds since the epoch.
+fn written_at(path: &Path) -> Option<f64> {
+    let modified = std::fs::metadata(path).and_then(|m| m.modified()).ok()?;
+    Some(modified.duration_since(UNIX_EPOCH).ok()?.as_secs_f64())
+}
+
 /// The latest checkpoint in `dir` written before `started_at` (seconds since the epoch): where an attempt that
 /// began then resumed from (0: none).
-pub fn resumed_step(dir: &Path, started_at: f64) -> u64 {
-    let began = UNIX_EPOCH + Duration::from_secs_f64(started_at.max(0.0));
+fn resumed_step(dir: &Path, started_at: f64) -> u64 {
     let Ok(entries) = std::fs::read_dir(dir) else { return 0 };
     entries
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| std::fs::metadata(p).and_then(|m| m.modified()).is_ok_and(|t| t <= began))
+        .filter(|p| written_at(p).is_some_and(|t| t <= started_at))
         .filter_map(|p| checkpoint::step_of(&p))
         .max()
         .unwrap_or(0)
 }
 
-/// A training of `steps` running in `staging` since `started_at` (seconds since the epoch), at `now`.
-pub fn training(staging: &Path, steps: u64, started_at: f64, now: f64) -> Option<TrainingProgress> {
-    let points = curve::read(&staging.join(CURVE_FILE), u64::MAX).ok()?;
+/// A training of `steps` running in `staging` since `started_at` (seconds since the epoch); its pace runs to its
+/// latest record.
+pub fn training(staging: &Path, steps: u64, started_at: f64) -> Option<TrainingProgress> {
+    let curve_file = staging.join(CURVE_FILE);
+    let mut points = curve::read(&curve_file, u64::MAX).ok()?;
     let checkpoints = staging.join(CHECKPOINT_DIR);
-    // Checkpoints come more often than curve points: the later of the two.
-    let checkpointed = checkpoint::latest(&checkpoints).ok().flatten().map_or(0, |(s, _)| s);
-    let step = points.iter().map(|p| p.step).max().unwrap_or(0).max(checkpointed);
+    let resumed_from = resumed_step(&checkpoints, started_at);
+    // Until this attempt first rewrites the curve, points past its checkpoint are a killed attempt's.
+    let curve_written = written_at(&curve_file).filter(|t| *t > started_at);
+    if curve_written.is_none() {
+        points.retain(|p| p.step <= resumed_from);
+    }
+    // A checkpoint may be later than the last curve point (checkpoints may come more often, and a training stopped
+    // by signal checkpoints where it stopped): the later of the two.
+    let checkpointed = checkpoint::latest(&checkpoints).ok().flatten();
+    let checkpoint_written = checkpointed.as_ref().and_then(|(_, path)| written_at(path));
+    let checkpointed = checkpointed.map_or(0, |(step, _)| step);
+    let step = points.iter().map(|p| p.step).max().unwrap_or(0).max(checkpointed).max(resumed_from);
     let latest = |split: &str| points.iter().filter(|p| p.split == split).max_by_key(|p| p.step).map(|p| p.bc);
-    let resumed_from = resumed_step(&checkpoints, started_at).min(step);
-    let (steps_per_second, seconds_left) = pace(step - resumed_from, now - started_at, steps.saturating_sub(step));
+    let recorded_at = [curve_written, checkpoint_written].into_iter().flatten().fold(started_at, f64::max);
+    let (steps_per_second, seconds_left) =
+        pace(step - resumed_from, recorded_at - started_at, steps.saturating_sub(step));
     Some(TrainingProgress {
         step,
         steps,
@@ -151,20 +175,22 @@ pub fn training(staging: &Path, steps: u64, started_at: f64, now: f64) -> Option
 }
 
 /// A pretraining of `trunk_steps` (then `attention_steps` of object attention) running in `staging` since
-/// `started_at`, at `now`; none before its first measurement.
+/// `started_at`; none before its first measurement. Its pace runs to that measurement.
 pub fn pretraining(
     staging: &Path,
     (trunk_steps, attention_steps): (u64, u64),
     started_at: f64,
-    now: f64,
 ) -> Option<PretrainingProgress> {
-    let latest = |file: &str| read_curve(&staging.join(file)).ok().and_then(|c| c.last().copied());
-    let (phase, steps, before, point) = match latest(ATTENTION_CURVE_FILE) {
-        Some(point) => ("object attention", attention_steps, trunk_steps, point),
+    let latest = |file: &str| {
+        let path = staging.join(file);
+        Some((read_curve(&path).ok()?.last().copied()?, written_at(&path)?))
+    };
+    let (phase, steps, before, (point, measured_at)) = match latest(ATTENTION_CURVE_FILE) {
+        Some(last) => ("object attention", attention_steps, trunk_steps, last),
         None => ("trunk", trunk_steps, 0, latest(TRUNK_CURVE_FILE)?),
     };
     let (done, total) = (before + point.step, trunk_steps + attention_steps);
-    let (steps_per_second, seconds_left) = pace(done, now - started_at, total.saturating_sub(done));
+    let (steps_per_second, seconds_left) = pace(done, measured_at - started_at, total.saturating_sub(done));
     Some(PretrainingProgress {
         phase,
         step: point.step,
@@ -183,16 +209,84 @@ mod tests {
 
     #[test]
     fn an_attempt_resumed_from_the_checkpoint_written_before_it_began() {
-        let dir = std::env::temp_dir().join(format!("oneshot-resumed-step-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let at = |secs: u64| UNIX_EPOCH + Duration::from_secs(secs);
-        for (step, written) in [(1000, 100), (2000, 200), (3000, 400)] {
-            let file = std::fs::File::create(checkpoint::path_for(&dir, step)).unwrap();
-            file.set_modified(at(written)).unwrap();
+        let dir = scratch("resumed");
+        for (step, written) in [(1000, 100.0), (2000, 200.0), (3000, 400.0)] {
+            std::fs::write(checkpoint::path_for(&dir, step), b"").unwrap();
+            set_written(&checkpoint::path_for(&dir, step), written);
         }
         assert_eq!(resumed_step(&dir, 300.0), 2000, "step 3000 was written by the attempt itself");
         assert_eq!(resumed_step(&dir, 50.0), 0, "no checkpoint before it: a fresh start");
         assert_eq!(resumed_step(&dir.join("absent"), 300.0), 0);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// An empty scratch folder for test `name`.
+    fn scratch(name: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("oneshot-progress-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    fn set_written(path: &Path, secs: f64) {
+        let file = std::fs::File::options().append(true).open(path).unwrap();
+        file.set_modified(UNIX_EPOCH + std::time::Duration::from_secs_f64(secs)).unwrap();
+    }
+
+    #[test]
+    fn a_resumed_training_shows_its_checkpoint_until_it_rewrites_a_killed_attempts_curve() {
+        let dir = scratch("training");
+        let checkpoints = dir.join(CHECKPOINT_DIR);
+        std::fs::create_dir_all(&checkpoints).unwrap();
+        let started = 1_000_000.0;
+        for (step, written) in [(1000, started - 100.0), (1500, started + 50.0)] {
+            let path = checkpoint::path_for(&checkpoints, step);
+            std::fs::write(&path, b"").unwrap();
+            set_written(&path, written);
+        }
+        let point = |step, split: &str, bc| curve::CurvePoint {
+            step,
+            split: split.into(),
+            bc,
+            inverse: 0.0,
+            point: 0.0,
+            task: 0.0,
+            total: bc,
+        };
+        // The killed attempt had measured step 2000 after its last checkpoint at 1000.
+        let killed = [point(0, "val", 5.0), point(2000, "train", 2.0), point(2000, "val", 1.9)];
+        curve::write(&dir.join(CURVE_FILE), &killed).unwrap();
+        set_written(&dir.join(CURVE_FILE), started - 50.0);
+        let p = training(&dir, 4000, started).unwrap();
+        assert_eq!((p.step, p.resumed_from, p.train_bc, p.val_bc), (1500, 1000, None, Some(5.0)));
+        assert_eq!((p.steps_per_second, p.seconds_left), (10.0, Some(250.0)), "500 steps by the checkpoint at 50 s");
+        // Once this attempt writes its own curve, its points count.
+        curve::write(&dir.join(CURVE_FILE), &[point(0, "val", 5.0), point(2000, "train", 1.5)]).unwrap();
+        set_written(&dir.join(CURVE_FILE), started + 100.0);
+        let p = training(&dir, 4000, started).unwrap();
+        assert_eq!((p.step, p.train_bc, p.steps_per_second, p.seconds_left), (2000, Some(1.5), 10.0, Some(200.0)));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_pretraining_shows_the_phase_of_its_latest_curve_and_its_pace_to_that_measurement() {
+        let dir = scratch("pretraining");
+        let started = 1_000_000.0;
+        assert!(pretraining(&dir, (100, 200), started).is_none(), "nothing measured yet");
+        let errors = |step, e| oneshot_lab::train::pretrain::LocaliseErrors { step, train: [e, e], held_out: [e, e] };
+        let write = |file: &str, curve: &[oneshot_lab::train::pretrain::LocaliseErrors], written: f64| {
+            let text: String = curve.iter().map(|p| serde_json::to_string(p).unwrap() + "\n").collect();
+            std::fs::write(dir.join(file), text).unwrap();
+            set_written(&dir.join(file), written);
+        };
+        write(TRUNK_CURVE_FILE, &[errors(0, 0.05), errors(100, 0.02)], started + 50.0);
+        let p = pretraining(&dir, (100, 200), started).unwrap();
+        assert_eq!((p.phase, p.step, p.steps, p.done, p.total, p.held_out), ("trunk", 100, 100, 100, 300, [0.02; 2]));
+        assert_eq!((p.steps_per_second, p.seconds_left), (2.0, Some(100.0)));
+        write(ATTENTION_CURVE_FILE, &[errors(0, 0.02), errors(50, 0.015)], started + 75.0);
+        let p = pretraining(&dir, (100, 200), started).unwrap();
+        assert_eq!((p.phase, p.step, p.steps, p.done, p.held_out), ("object attention", 50, 200, 150, [0.015; 2]));
+        assert_eq!((p.steps_per_second, p.seconds_left), (2.0, Some(75.0)));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

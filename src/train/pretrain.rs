@@ -166,6 +166,7 @@ impl PretrainConfig {
             trunk_out: Some(trunk),
             attention_shape,
             attention_out: Some(attention_out),
+            curve_out: None,
             ..first.clone()
         })
     }

@@ -405,15 +405,23 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     let stopped = child.wait_with_output().unwrap();
     assert!(!stopped.status.success());
     let conn = db(&store);
-    let errors: Vec<String> = conn
-        .prepare("SELECT a.error FROM attempts a JOIN stages s ON s.key = a.stage_key WHERE s.kind = 'train'")
+    let errors: Vec<(String, String)> = conn
+        .prepare("SELECT s.key, a.error FROM attempts a JOIN stages s ON s.key = a.stage_key WHERE s.kind = 'train'")
         .unwrap()
-        .query_map([], |r| r.get(0))
+        .query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
         .unwrap()
         .map(Result::unwrap)
         .collect();
     assert_eq!(errors.len(), 2, "{errors:?}");
-    assert!(errors.iter().all(|e| e.contains("stopped by SIGTERM at step")), "{errors:?}");
+    assert!(errors.iter().all(|(_, e)| e.contains("stopped by SIGTERM at step")), "{errors:?}");
+    // The step each training stopped and checkpointed at, by key.
+    let stopped_at: std::collections::HashMap<String, u64> = errors
+        .iter()
+        .map(|(key, e)| {
+            let step = e.split("at step ").nth(1).and_then(|s| s.split_whitespace().next()).unwrap();
+            (key.clone(), step.parse().unwrap())
+        })
+        .collect();
     assert!(stage_processes().is_empty());
 
     // kill -9 of the run: its stage processes notice and end.
@@ -424,7 +432,8 @@ fn a_stopped_or_killed_concurrent_run_stops_its_stage_processes() {
     for attempt in &both_trainings(&store) {
         let progress = &attempt["training"];
         let (step, resumed) = (progress["step"].as_u64().unwrap(), progress["resumed_from"].as_u64().unwrap());
-        assert!(resumed >= 20 && resumed <= before && step >= resumed, "{attempt}");
+        let key = attempt["key"].as_str().unwrap();
+        assert!(resumed == stopped_at[key] && resumed > 0 && step >= resumed, "{attempt}: {stopped_at:?}");
     }
     child.kill().unwrap();
     child.wait().unwrap();
