@@ -26,6 +26,16 @@ pub fn write_atomic(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
     write_with(path, |tmp| Ok(std::fs::write(tmp, bytes)?))
 }
 
+/// Writes `records` to `path` as JSON lines, one record a line, atomically.
+pub fn write_json_lines<T: serde::Serialize>(path: &Path, records: &[T]) -> Result<()> {
+    let mut text = String::new();
+    for record in records {
+        text += &serde_json::to_string(record)?;
+        text.push('\n');
+    }
+    write_atomic(path, text)
+}
+
 /// The hidden sibling folder `.name.partial` that a folder is built in before it is published.
 pub fn staging_sibling(dest: &Path) -> Result<PathBuf> {
     let name = dest.file_name().with_context(|| format!("{} has no folder name", dest.display()))?;

@@ -275,8 +275,7 @@ mod tests {
         assert!(pretraining(&dir, (100, 200), started).is_none(), "nothing measured yet");
         let errors = |step, e| oneshot_lab::train::pretrain::LocaliseErrors { step, train: [e, e], held_out: [e, e] };
         let write = |file: &str, curve: &[oneshot_lab::train::pretrain::LocaliseErrors], written: f64| {
-            let text: String = curve.iter().map(|p| serde_json::to_string(p).unwrap() + "\n").collect();
-            std::fs::write(dir.join(file), text).unwrap();
+            oneshot_lab::fsio::write_json_lines(&dir.join(file), curve).unwrap();
             set_written(&dir.join(file), written);
         };
         write(TRUNK_CURVE_FILE, &[errors(0, 0.05), errors(100, 0.02)], started + 50.0);

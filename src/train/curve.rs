@@ -48,12 +48,7 @@ pub fn resumed(path: &Path, start: u64) -> Result<Vec<CurvePoint>> {
 
 /// Rewrites the curve at `path` atomically.
 pub fn write(path: &Path, points: &[CurvePoint]) -> Result<()> {
-    let mut text = String::new();
-    for p in points {
-        text += &serde_json::to_string(p)?;
-        text.push('\n');
-    }
-    crate::fsio::write_atomic(path, text)
+    crate::fsio::write_json_lines(path, points)
 }
 
 #[cfg(test)]

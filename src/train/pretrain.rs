@@ -329,7 +329,7 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         if step % config.report_every == 0 || step == config.steps {
             curve.push(LocaliseErrors { step, train: score(&train), held_out: score(&held_out) });
             if let Some(path) = &config.curve_out {
-                write_curve(path, &curve)?;
+                crate::fsio::write_json_lines(path, &curve)?;
             }
         }
         if step == config.steps {
@@ -372,16 +372,6 @@ pub fn localise(dir: &Path, config: &LocaliseConfig, device: Device) -> Result<L
         mean_baseline,
         curve,
     })
-}
-
-/// Writes `curve` to `path` as JSON lines, atomically.
-fn write_curve(path: &Path, curve: &[LocaliseErrors]) -> Result<()> {
-    let mut text = String::new();
-    for point in curve {
-        text += &serde_json::to_string(point)?;
-        text.push('\n');
-    }
-    crate::fsio::write_atomic(path, text)
 }
 
 /// The curve a localisation run kept at `path` (`LocaliseConfig::curve_out`).
