@@ -20,8 +20,9 @@ pub struct TrainingProgress {
     /// The latest training and validation BC on its curve.
     pub train_bc: Option<f64>,
     pub val_bc: Option<f64>,
-    /// This attempt's pace up to its latest record, and the time the steps left would take at it.
-    pub steps_per_second: f64,
+    /// This attempt's pace up to its latest record (none before its first), and the time the steps left would
+    /// take at it.
+    pub steps_per_second: Option<f64>,
     pub seconds_left: Option<f64>,
 }
 
@@ -40,7 +41,7 @@ pub struct PretrainingProgress {
     pub done: u64,
     pub total: u64,
     /// The pace up to the latest measurement, and the time the steps left would take at it.
-    pub steps_per_second: f64,
+    pub steps_per_second: Option<f64>,
     pub seconds_left: Option<f64>,
 }
 
@@ -77,14 +78,19 @@ impl std::fmt::Display for Progress {
     }
 }
 
-/// Steps per second over `seconds` and the seconds the `left` steps would take at that pace.
-fn pace(steps: u64, seconds: f64, left: u64) -> (f64, Option<f64>) {
-    let rate = steps as f64 / seconds.max(1.0);
-    (rate, (rate > 0.0).then(|| left as f64 / rate))
+/// Steps per second over `seconds` and the seconds the `left` steps would take at that pace; neither before the
+/// first step.
+fn pace(steps: u64, seconds: f64, left: u64) -> (Option<f64>, Option<f64>) {
+    let rate = (steps > 0).then(|| steps as f64 / seconds.max(1.0));
+    (rate, rate.map(|rate| left as f64 / rate))
 }
 
-fn minutes_left(seconds: Option<f64>) -> String {
-    seconds.map_or(String::new(), |s| format!(", about {:.0} min left", s / 60.0))
+/// The pace and the time left, as `status` prints them.
+fn pace_text(steps_per_second: Option<f64>, seconds_left: Option<f64>) -> String {
+    match (steps_per_second, seconds_left) {
+        (Some(rate), Some(left)) => format!("{rate:.2} steps/s, about {:.0} min left", left / 60.0),
+        _ => "pace not yet measured".to_string(),
+    }
 }
 
 impl std::fmt::Display for TrainingProgress {
@@ -94,13 +100,12 @@ impl std::fmt::Display for TrainingProgress {
             if self.resumed_from > 0 { format!(" (resumed at {})", self.resumed_from) } else { String::new() };
         write!(
             f,
-            "step {} of {}{resumed}: train bc {}, val bc {}, {:.2} steps/s{}",
+            "step {} of {}{resumed}: train bc {}, val bc {}, {}",
             self.step,
             self.steps,
             bc(self.train_bc),
             bc(self.val_bc),
-            self.steps_per_second,
-            minutes_left(self.seconds_left)
+            pace_text(self.steps_per_second, self.seconds_left)
         )
     }
 }
@@ -111,14 +116,13 @@ impl std::fmt::Display for PretrainingProgress {
             if self.total > self.steps { format!(" ({} of {} in all)", self.done, self.total) } else { String::new() };
         write!(
             f,
-            "{} step {} of {}{all}: held-out error {:.2} / {:.2} cm, {:.2} steps/s{}",
+            "{} step {} of {}{all}: held-out error {:.2} / {:.2} cm, {}",
             self.phase,
             self.step,
             self.steps,
             100.0 * self.held_out[0],
             100.0 * self.held_out[1],
-            self.steps_per_second,
-            minutes_left(self.seconds_left)
+            pace_text(self.steps_per_second, self.seconds_left)
         )
     }
 }
@@ -259,12 +263,19 @@ mod tests {
         set_written(&dir.join(CURVE_FILE), started - 50.0);
         let p = training(&dir, 4000, started).unwrap();
         assert_eq!((p.step, p.resumed_from, p.train_bc, p.val_bc), (1500, 1000, None, Some(5.0)));
-        assert_eq!((p.steps_per_second, p.seconds_left), (10.0, Some(250.0)), "500 steps by the checkpoint at 50 s");
+        assert_eq!(
+            (p.steps_per_second, p.seconds_left),
+            (Some(10.0), Some(250.0)),
+            "500 steps by the checkpoint at 50 s"
+        );
         // Once this attempt writes its own curve, its points count.
         curve::write(&dir.join(CURVE_FILE), &[point(0, "val", 5.0), point(2000, "train", 1.5)]).unwrap();
         set_written(&dir.join(CURVE_FILE), started + 100.0);
         let p = training(&dir, 4000, started).unwrap();
-        assert_eq!((p.step, p.train_bc, p.steps_per_second, p.seconds_left), (2000, Some(1.5), 10.0, Some(200.0)));
+        assert_eq!(
+            (p.step, p.train_bc, p.steps_per_second, p.seconds_left),
+            (2000, Some(1.5), Some(10.0), Some(200.0))
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -281,18 +292,20 @@ mod tests {
         write(TRUNK_CURVE_FILE, &[errors(0, 0.05), errors(100, 0.02)], started + 50.0);
         let p = pretraining(&dir, (100, 200), started).unwrap();
         assert_eq!((p.phase, p.step, p.steps, p.done, p.total, p.held_out), ("trunk", 100, 100, 100, 300, [0.02; 2]));
-        assert_eq!((p.steps_per_second, p.seconds_left), (2.0, Some(100.0)));
+        assert_eq!((p.steps_per_second, p.seconds_left), (Some(2.0), Some(100.0)));
         write(ATTENTION_CURVE_FILE, &[errors(0, 0.02), errors(50, 0.015)], started + 75.0);
         let p = pretraining(&dir, (100, 200), started).unwrap();
         assert_eq!((p.phase, p.step, p.steps, p.done, p.held_out), ("object attention", 50, 200, 150, [0.015; 2]));
-        assert_eq!((p.steps_per_second, p.seconds_left), (2.0, Some(75.0)));
+        assert_eq!((p.steps_per_second, p.seconds_left), (Some(2.0), Some(75.0)));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn the_pace_counts_only_this_attempts_steps() {
         let (rate, left) = pace(500, 250.0, 1000);
-        assert_eq!((rate, left), (2.0, Some(500.0)));
-        assert_eq!(pace(0, 0.0, 10), (0.0, None), "no steps yet: no estimate");
+        assert_eq!((rate, left), (Some(2.0), Some(500.0)));
+        assert_eq!(pace(0, 0.0, 10), (None, None), "no steps yet: no estimate");
+        assert_eq!(pace_text(None, None), "pace not yet measured");
+        assert_eq!(pace_text(Some(0.5), Some(600.0)), "0.50 steps/s, about 10 min left");
     }
 }

@@ -654,6 +654,31 @@ mod tests {
     }
 
     #[test]
+    fn a_failure_stops_showing_once_its_stage_is_run_again() {
+        let root = std::env::temp_dir().join(format!("oneshot-store-failures-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
+        let (first, second) = (&plan.stages[&plan.order[0]], &plan.stages[&plan.order[1]]);
+        let mut store = Store::open(&root).unwrap();
+        store.register(&[first, second]).unwrap();
+        for (stage, why) in [(first, "first broke"), (second, "second broke")] {
+            let Claim::Acquired(attempt) = store.claim(&stage.key, false).unwrap() else { panic!("not claimed") };
+            store.fail(&stage.key, attempt, why).unwrap();
+        }
+        let standing = |store: &Store| -> Vec<String> {
+            store.recent_failures(5).unwrap().into_iter().map(|f| f.error.unwrap_or_default()).collect()
+        };
+        assert_eq!(standing(&store), ["second broke", "first broke"]);
+        // Running the first stage again hides its old failure, whether the new attempt runs or has finished.
+        let Claim::Acquired(attempt) = store.claim(&first.key, false).unwrap() else { panic!("not claimed") };
+        assert_eq!(standing(&store), ["second broke"]);
+        let outputs = StageOutputs { metrics: Vec::new(), episodes: Vec::new(), curve: Vec::new() };
+        store.complete(&first.key, attempt, &root.join("artifacts/x"), &outputs).unwrap();
+        assert_eq!(standing(&store), ["second broke"]);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
     fn a_store_whose_path_holds_uri_characters_opens_read_only() {
         // `%41` would read as `A`, `?` end the path and `#` start a fragment in an unescaped SQLite URI.
         let root = std::env::temp_dir().join(format!("oneshot-store-%41?#-{}", std::process::id()));

@@ -359,9 +359,16 @@ impl Store {
         self.attempts("running", "ORDER BY a.id")
     }
 
-    /// The latest `n` failed attempts, newest first.
+    /// The latest `n` failures that still stand, newest first: attempts that failed and are their stage's latest,
+    /// so a stage that was run again since (finished or running) no longer shows its old failure.
     pub fn recent_failures(&self, n: usize) -> Result<Vec<AttemptRecord>> {
-        self.attempts("failed", &format!("ORDER BY a.id DESC LIMIT {n}"))
+        self.attempts(
+            "failed",
+            &format!(
+                "AND a.id = (SELECT MAX(b.id) FROM attempts b WHERE b.stage_key = a.stage_key)
+                 ORDER BY a.id DESC LIMIT {n}"
+            ),
+        )
     }
 
     /// Runs a named query (see [`NAMED_QUERIES`]) or raw SQL on a read-only connection.
