@@ -93,7 +93,7 @@ pub struct BenchEvalArgs {
     #[arg(long, default_value_t = 40)]
     pub horizon: usize,
     /// Simulation threads (default: CPU cores).
-    #[arg(long)]
+    #[arg(long, value_parser = super::options::at_least_one)]
     pub workers: Option<usize>,
 }
 

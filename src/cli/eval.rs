@@ -49,7 +49,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub batch: Option<usize>,
     /// Simulation threads (default: CPU cores).
-    #[arg(long)]
+    #[arg(long, value_parser = super::options::at_least_one)]
     pub workers: Option<usize>,
     /// `auto`, `cpu`, `cuda` or `cuda:N` (default: eval.device).
     #[arg(long)]

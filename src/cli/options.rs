@@ -102,6 +102,15 @@ impl FrameArgs {
     }
 }
 
+/// A count that must be at least 1 (jobs, workers).
+pub fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(format!("`{s}`: {e}")),
+    }
+}
+
 /// A lower-case name in the configuration's spelling, parsed as its type (a robot, visuals, a localisation target).
 pub fn parse_named<T: serde::de::DeserializeOwned>(s: &str) -> Result<T, String> {
     serde_json::from_value(serde_json::Value::String(s.to_string())).map_err(|e| format!("`{s}`: {e}"))

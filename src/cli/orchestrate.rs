@@ -26,10 +26,10 @@ pub struct RunArgs {
     #[command(flatten)]
     pub store: StoreArgs,
     /// Stages executed at once; above 1, each in a process of its own (so it gives the result it gives alone).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, value_parser = super::options::at_least_one, default_value_t = 1)]
     pub jobs: usize,
     /// Simulation threads per collection or evaluation stage (default: CPU cores).
-    #[arg(long)]
+    #[arg(long, value_parser = super::options::at_least_one)]
     pub workers: Option<usize>,
     /// Only cells whose `cell/kind` label matches (`*` wildcards), plus what they need.
     #[arg(long)]
@@ -73,7 +73,7 @@ pub struct RunStageArgs {
     #[command(flatten)]
     pub store: StoreArgs,
     /// Simulation threads (default: CPU cores).
-    #[arg(long)]
+    #[arg(long, value_parser = super::options::at_least_one)]
     pub workers: Option<usize>,
     /// Device of a network stage (`cuda:N`, as `run --gpus` hands them out); default: the stage's configuration.
     #[arg(long)]

@@ -117,7 +117,7 @@ pub struct CollectArgs {
     #[arg(long)]
     pub seed: Option<u64>,
     /// Parallel workers (default: CPU cores).
-    #[arg(long)]
+    #[arg(long, value_parser = super::options::at_least_one)]
     pub workers: Option<usize>,
     /// JPEG quality of stored frames (default: collect.jpeg_quality).
     #[arg(long)]

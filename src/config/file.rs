@@ -67,12 +67,31 @@ pub(super) fn line_of(text: &str, key: &str) -> Option<usize> {
         .map(|i| i + 1)
 }
 
+/// The most bytes an experiment or configuration file may hold: far above any real one.
+const MAX_FILE_BYTES: u64 = 1 << 20;
+
+/// The text of a configuration file: a regular file of at most [`MAX_FILE_BYTES`], in UTF-8.
+pub(super) fn read_text(path: &Path) -> Result<String> {
+    let meta = std::fs::metadata(path).with_context(|| format!("reading {}", path.display()))?;
+    if !meta.is_file() {
+        bail!("{} is not a regular file: an experiment or configuration file is a TOML file", path.display());
+    }
+    if meta.len() > MAX_FILE_BYTES {
+        bail!(
+            "{} holds {} bytes: an experiment or configuration file holds at most {MAX_FILE_BYTES}",
+            path.display(),
+            meta.len()
+        );
+    }
+    std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
+}
+
 /// Reads one file (and, recursively, its include) into a merged table.
 pub(super) fn read_table(path: &Path, depth: usize) -> Result<(toml::Table, String)> {
     if depth > 8 {
         bail!("{}: include chain deeper than 8 files", path.display());
     }
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_text(path)?;
     let mut table: toml::Table = toml::from_str(&text).with_context(|| format!("in {}", path.display()))?;
     let Some(include) = table.remove("include") else { return Ok((table, text)) };
     let include = include.as_str().with_context(|| format!("{}: include must be a string", path.display()))?;

@@ -168,10 +168,6 @@ impl Experiment {
             };
             merge(&mut table, &over);
         }
-        for o in &resolution.overrides {
-            check_alone(o, "--set")?;
-            o.apply(&mut table)?;
-        }
         if let Some(key) = non_finite(&table, "") {
             bail!(
                 "{file}{}: {key} is not a finite number",
@@ -179,6 +175,13 @@ impl Experiment {
                     .map(|l| format!(" (line {l})"))
                     .unwrap_or_default()
             );
+        }
+        for o in &resolution.overrides {
+            check_alone(o, "--set")?;
+            o.apply(&mut table)?;
+            if let Some(key) = non_finite(&table, "") {
+                bail!("--set {o}: {key} is not a finite number");
+            }
         }
         let mut what = match profile {
             Some(p) => format!("the file with profile `{p}`"),
@@ -207,9 +210,13 @@ impl Experiment {
         }
         let base = resolve(&base_table, &file, "the base configuration", &text)?;
         validate_grid(&grid, &variants, &file, &text)?;
-        for variant in variants.keys() {
+        for (variant, over) in &variants {
             crate::fsio::check_plain_name("variant", variant)
                 .with_context(|| format!("{file}: variant names become cell and folder names"))?;
+            // Every defined variant is checked, listed in grid.variants or not.
+            let mut t = base_table.clone();
+            merge(&mut t, over);
+            resolve(&t, &file, &format!("variant `{variant}`"), &text)?;
         }
 
         let sweep = sweep_points(&grid.sweep).with_context(|| format!("{file}: grid.sweep"))?;
@@ -321,21 +328,27 @@ fn sweep_points(sweep: &BTreeMap<String, Vec<toml::Value>>) -> Result<Vec<SweepP
 /// override itself rather than a line of the file.
 fn check_alone(o: &Override, label: &str) -> Result<()> {
     const SECTIONS: [&str; 6] = ["world", "collect", "model", "pretrain", "train", "eval"];
+    if o.path.first().is_some_and(|p| p == "profiles") {
+        bail!("{label} {o}: a profile applies before the overrides; pick it with --profile and set its keys directly");
+    }
     let in_cell = match o.path.as_slice() {
         [variants, _, rest @ ..] if variants == "variants" && !rest.is_empty() => Some(rest),
         [section, ..] if SECTIONS.contains(&section.as_str()) => Some(o.path.as_slice()),
         _ => None,
     };
-    let mut table = toml::Table::new();
     let typed = match in_cell {
         Some(path) => {
             if !SECTIONS.contains(&path[0].as_str()) {
                 bail!("{label} {o}: `{}` is not a section (sections: {})", path[0], SECTIONS.join(", "));
             }
+            // Set onto the defaults, so that a key of a nested table (`world.image.height`) is typed beside
+            // its siblings.
+            let mut table = toml::Table::try_from(CellConfig::default()).context("the default configuration")?;
             Override { path: path.to_vec(), value: o.value.clone() }.apply(&mut table)?;
             toml::Value::Table(table).try_into::<CellConfig>().map(drop)
         }
         None => {
+            let mut table = toml::Table::new();
             o.apply(&mut table)?;
             toml::Value::Table(table).try_into::<FileShape>().map(drop)
         }
@@ -348,7 +361,7 @@ impl CellConfig {
     /// paper's values by default), e.g. for `train --config`; errors name the file, the line and the key.
     pub fn load(path: &Path) -> Result<CellConfig> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {file}"))?;
+        let text = file::read_text(path)?;
         let table: toml::Table = toml::from_str(&text).with_context(|| format!("in {file}"))?;
         // Typed straight from the text first: its errors carry their position in the file.
         toml::from_str::<CellConfig>(&text).map_err(|e| located(e, &file, "the file", &text))?;
@@ -418,6 +431,50 @@ mod tests {
         let library = err(&format!("[world]\nobjects = \"library\"\n[collect]\nlayouts = \"unique\"\n{grid}"));
         assert!(library.contains("collect.layouts") && library.contains("environment_instances"), "{library}");
         load(&format!("[world]\nobjects = \"library\"\n{grid}")).unwrap();
+    }
+
+    #[test]
+    fn overrides_are_typed_beside_their_siblings_and_named_when_wrong() {
+        let dir = std::env::temp_dir().join(format!("oneshot-config-overrides-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("e.toml");
+        std::fs::write(&path, "[world.image]\nheight = 32\nwidth = 40\n[grid]\nsizes = [16]\n").unwrap();
+        let with = |sets: &[&str]| {
+            let overrides = sets.iter().map(|s| s.parse().unwrap()).collect();
+            Experiment::load(&path, &Resolution { profile: None, overrides })
+        };
+        let e = with(&["world.image.height=48"]).unwrap();
+        assert_eq!((e.cells[0].config.world.image.height, e.cells[0].config.world.image.width), (48, 40));
+        let err = |sets: &[&str]| format!("{:#}", with(sets).unwrap_err());
+        assert!(err(&["world.image.height=tall"]).contains("--set world.image.height"));
+        let nan = err(&["train.lr=nan"]);
+        assert!(nan.starts_with("--set train.lr=nan: train.lr is not a finite number"), "{nan}");
+        assert!(err(&["profiles.cpu.train.steps=5"]).contains("--profile"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn every_variant_is_checked_and_no_grid_list_repeats_a_value() {
+        let err = |text: &str| format!("{:#}", load(text).unwrap_err());
+        let grid = "[grid]\nsizes = [16]\n";
+        assert!(err(&format!("[variants.x]\ntrain.lrr = 0.1\n{grid}")).contains("lrr"), "unlisted, still checked");
+        assert!(err(&format!("[variants.full]\ntrain.steps = 7\n{grid}")).contains("[variants.full]"));
+        assert!(err("[grid]\nsizes = [16, 16]\n").contains("grid.sizes lists 16 twice"));
+        assert!(err("[grid]\nsizes = [16]\nseeds = [0, 0]\n").contains("grid.seeds lists 0 twice"));
+        assert!(err("[grid]\nsizes = [16]\nvariants = [\"full\", \"full\"]\n").contains("grid.variants"));
+    }
+
+    #[test]
+    fn a_configuration_file_is_a_regular_file_of_bounded_size() {
+        let err = |path: &str| format!("{:#}", Experiment::load(Path::new(path), &Resolution::default()).unwrap_err());
+        assert!(err("/dev/zero").contains("not a regular file"));
+        assert!(err("/").contains("not a regular file"));
+        let dir = std::env::temp_dir().join(format!("oneshot-config-big-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("big.toml");
+        std::fs::write(&path, "#".repeat(2 << 20)).unwrap();
+        assert!(err(path.to_str().unwrap()).contains("at most"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -122,6 +122,16 @@ pub(super) fn validate_grid(
             );
         }
     }
+    if variants.contains_key(FULL) {
+        bail!(
+            "{file}{}: [variants.{FULL}] is the base configuration itself: set its keys in the sections instead",
+            at(&format!("variants.{FULL}"))
+        );
+    }
+    repeated("grid.variants", &grid.variants).map_err(|e| anyhow::anyhow!("{file}{}: {e}", at("variants")))?;
+    repeated("grid.sizes", &grid.sizes).map_err(|e| anyhow::anyhow!("{file}{}: {e}", at("sizes")))?;
+    repeated("grid.seeds", &grid.seeds).map_err(|e| anyhow::anyhow!("{file}{}: {e}", at("seeds")))?;
+    repeated("grid.references", &grid.references).map_err(|e| anyhow::anyhow!("{file}{}: {e}", at("references")))?;
     for &n in &grid.sizes {
         if n == 0 {
             bail!("{file}{}: grid.sizes contains 0: sizes must be positive", at("sizes"));
@@ -141,6 +151,14 @@ pub(super) fn validate_grid(
         bail!("{file}{}: grid.variants and grid.seeds must not be empty", at("grid"));
     }
     Ok(())
+}
+
+/// An error naming the first value `list` holds twice (two cells would share one name).
+fn repeated<T: PartialEq + std::fmt::Debug>(key: &str, list: &[T]) -> Result<()> {
+    match list.iter().enumerate().find(|(i, v)| list[..*i].contains(v)) {
+        Some((_, v)) => bail!("{key} lists {v:?} twice: each cell would run twice under one name"),
+        None => Ok(()),
+    }
 }
 
 impl CellConfig {

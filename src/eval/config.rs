@@ -116,11 +116,21 @@ impl Default for EvalConfig {
     }
 }
 
+/// The most episodes (or steps of one) an evaluation may ask for: far above the paper's 160 episodes of 60 steps.
+const MAX_EPISODES: usize = 1_000_000;
+
 impl EvalConfig {
     /// Checks ranges; errors name the key.
     pub fn validate(&self) -> Result<()> {
         if self.episodes == 0 || self.horizon == 0 || self.batch == 0 {
             bail!("eval.episodes, eval.horizon and eval.batch must be at least 1");
+        }
+        if self.episodes > MAX_EPISODES || self.horizon > MAX_EPISODES {
+            bail!(
+                "eval.episodes = {} and eval.horizon = {} must be at most {MAX_EPISODES}",
+                self.episodes,
+                self.horizon
+            );
         }
         if self.demo_max_actions == 0 || self.demo_attempts == 0 {
             bail!("eval.demo_max_actions and eval.demo_attempts must be at least 1");

@@ -37,7 +37,7 @@ pub struct HoldSummary {
 }
 
 /// Whether after `s` the task's object lies between the fingers.
-fn between(s: &TraceStep) -> bool {
+pub(super) fn between(s: &TraceStep) -> bool {
     let [x, y, z] = s.object_in_gripper;
     x.abs() < BETWEEN && y.abs() < BETWEEN && z < ALONG
 }

@@ -6,6 +6,7 @@
 //! window's last position is sampled; the rotation is replaced by the agent's fixed orientation and the gripper
 //! binarised.
 pub mod actor;
+pub mod carries;
 pub mod choice;
 pub mod config;
 pub mod grasps;

@@ -40,6 +40,7 @@ pub fn run_eval(
         Actor::Network(t) => world.cloned().unwrap_or_else(|| t.summary.world.clone()),
         _ => world.cloned().unwrap_or_default(),
     };
+    world.validate()?;
     let output = EvalOutput { strips_dir: out.map(|o| o.join("strips")), videos_dir: out.map(|o| o.join(VIDEOS_DIR)) };
     let (results, steps) =
         rollouts(&loaded, &world, config, &layouts.episodes(config, world.objects)?, workers, &output)?;

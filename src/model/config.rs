@@ -261,6 +261,9 @@ impl Default for ModelConfig {
     }
 }
 
+/// The largest width, hidden size or count a model key may take: far above the paper's (512 channels).
+const MAX_WIDTH: i64 = 1 << 16;
+
 impl ModelConfig {
     /// Number of demonstrator frames the policy sees.
     pub fn context_len(&self) -> usize {
@@ -291,8 +294,8 @@ impl ModelConfig {
             ("mixtures", self.mixtures),
         ];
         for (key, v) in positive {
-            if v <= 0 {
-                bail!("model.{key} = {v} must be positive");
+            if !(1..=MAX_WIDTH).contains(&v) {
+                bail!("model.{key} = {v} out of range 1..={MAX_WIDTH}");
             }
         }
         if !(1..=4).contains(&self.backbone_stages) {

@@ -2,6 +2,7 @@
 //! size and blake3) when it is published, and checked before the store calls it cached, before it is used as an
 //! upstream and before a report copies from it. A damaged or missing artifact marks its stage failed with the
 //! reason, so `plan`, `status` and `run` agree and the next `run` recomputes it.
+use super::child::RESULTS_FILE;
 use super::store::{StageState, Store};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
@@ -53,7 +54,9 @@ pub fn seal(dir: &Path) -> Result<()> {
 }
 
 /// Checks the artifact folder `dir` against its manifest; the error names the first file that is missing, of
-/// another size or another digest. A folder sealed before manifests existed is sealed as it is now.
+/// another size or another digest, a file the manifest does not list (but the stage process's results, written
+/// after the seal), or an entry that is not a plain path inside the folder. A folder without a manifest was never
+/// sealed, so it is damaged.
 pub fn verify(dir: &Path) -> Result<()> {
     if !dir.is_dir() {
         bail!("its artifact folder {} is missing", dir.display());
@@ -61,12 +64,19 @@ pub fn verify(dir: &Path) -> Result<()> {
     let manifest = dir.join(DIGESTS_FILE);
     let text = match std::fs::read_to_string(&manifest) {
         Ok(t) => t,
-        // An artifact published before manifests existed: trusted as it is, sealed where the store is writable.
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return seal(dir).or(Ok(())),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!("{} is missing: never sealed", manifest.display()),
         Err(e) => return Err(e).with_context(|| format!("reading {}", manifest.display())),
     };
     let digests: Vec<Digest> =
         serde_json::from_str(&text).with_context(|| format!("{} is not a digest manifest", manifest.display()))?;
+    let inside = |p: &str| Path::new(p).components().all(|c| matches!(c, std::path::Component::Normal(_)));
+    if let Some(d) = digests.iter().find(|d| d.path.is_empty() || !inside(&d.path)) {
+        bail!("{} lists {:?}, which is not a path inside the folder", manifest.display(), d.path);
+    }
+    let listed: std::collections::HashSet<&Path> = digests.iter().map(|d| Path::new(&d.path)).collect();
+    if let Some(extra) = files(dir)?.iter().find(|f| !listed.contains(f.as_path()) && **f != Path::new(RESULTS_FILE)) {
+        bail!("{} is not in the published manifest", dir.join(extra).display());
+    }
     for d in &digests {
         let path = dir.join(&d.path);
         let bytes = std::fs::metadata(&path).map(|m| m.len()).ok();
@@ -120,8 +130,18 @@ mod tests {
         assert!(e.contains("a.bin") && e.contains("blake3"), "{e}");
         std::fs::write(dir.join("a.bin"), [1u8; 100]).unwrap();
         verify(&dir).unwrap();
+        std::fs::write(dir.join(RESULTS_FILE), "{}").unwrap();
+        verify(&dir).unwrap();
+        std::fs::write(dir.join("sub/extra"), "x").unwrap();
+        assert!(verify(&dir).unwrap_err().to_string().contains("extra is not in the published manifest"));
+        std::fs::remove_file(dir.join("sub/extra")).unwrap();
         std::fs::remove_file(dir.join("sub/b.json")).unwrap();
         assert!(verify(&dir).unwrap_err().to_string().contains("b.json is missing"));
+        let outside = r#"[{"path": "../elsewhere", "bytes": 1, "blake3": "00"}]"#;
+        std::fs::write(dir.join(DIGESTS_FILE), outside).unwrap();
+        assert!(verify(&dir).unwrap_err().to_string().contains("not a path inside the folder"));
+        std::fs::remove_file(dir.join(DIGESTS_FILE)).unwrap();
+        assert!(verify(&dir).unwrap_err().to_string().contains("never sealed"), "an unsealed folder is damaged");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

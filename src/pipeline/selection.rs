@@ -16,6 +16,9 @@ pub struct Pattern(GlobMatcher, String);
 impl Pattern {
     /// Parses `pattern`; the error names it.
     pub fn new(pattern: &str) -> Result<Pattern> {
+        if pattern.trim().is_empty() {
+            bail!("stage pattern {pattern:?} is empty: name the cells or stages to select (a glob such as 'n1600-*')");
+        }
         let wild = pattern.contains(['*', '?', '[', '{']);
         let glob = if wild { pattern.to_string() } else { format!("*{pattern}*") };
         let glob = Glob::new(&glob).with_context(|| format!("stage pattern {pattern:?}"))?;

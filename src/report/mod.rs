@@ -1,4 +1,5 @@
 //! Reports: the paper's tables and figures for one experiment, rebuilt from the results store alone.
+pub mod carries;
 pub mod data;
 pub mod holds;
 pub mod html;
@@ -159,6 +160,16 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
                   how many rose without it.\n\n";
         index += &table;
     }
+    if let Some(table) = carries::markdown(store, &rows)? {
+        write("carries.md", &table)?;
+        index += "\n## After the pick\n\nFrom the traces of evaluations that kept them (`eval.traces`): what became of \
+                  the episodes that picked the task's object. Placed first, then left at rest in another quadrant of \
+                  the target bin; the rest by the last step that ran with the gripper closed: the object still \
+                  between the fingers when the gripper opened (let go, not placed), no longer between them (lost \
+                  from the fingers: a pick that held it by an edge, or dropped it), or never opened and still held \
+                  at the end.\n\n";
+        index += &table;
+    }
     let mut per_task = Vec::with_capacity(rows.len());
     for r in rows.iter().filter(|r| !r.in_library_world()) {
         per_task.push((r, store.task_counts(&r.eval_keys)?));
@@ -187,11 +198,39 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     write("index.md", &index)?;
     write("index.html", &html::page(&index, &staging, experiment)?)?;
 
-    if out.exists() && !out.join("index.md").is_file() {
+    write(MARKER, "This folder was written by `oneshot-lab report`; the next report replaces it as a whole.\n")?;
+    if let Err(e) = check_replaceable(out, &staging) {
         crate::fsio::remove_dir_if_present(&staging)?;
-        bail!("{} exists and is not a report (no index.md): refusing to replace it", out.display());
+        return Err(e);
     }
     crate::fsio::publish_dir(&staging, out)?;
+    Ok(())
+}
+
+/// The file every report folder carries, so that a report replaces only a folder a report wrote.
+pub const MARKER: &str = ".oneshot-lab-report";
+
+/// Whether the existing folder `out` may be replaced by the new report in `staging`: it carries the marker, or
+/// (a report written before the marker) holds an `index.md` and nothing the new report does not also write.
+fn check_replaceable(out: &Path, staging: &Path) -> Result<()> {
+    if !out.exists() || out.join(MARKER).is_file() {
+        return Ok(());
+    }
+    if !out.join("index.md").is_file() {
+        bail!("{} exists and is not a report (no index.md): refusing to replace it", out.display());
+    }
+    let entries = std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))?;
+    for entry in entries {
+        let name = entry?.file_name();
+        if !staging.join(&name).exists() {
+            bail!(
+                "{} holds {:?}, which a report does not write: refusing to replace the folder (move that file \
+                 away or pick another --out)",
+                out.display(),
+                name
+            );
+        }
+    }
     Ok(())
 }
 
@@ -215,5 +254,31 @@ mod tests {
         let refs: Vec<&ResultRow> = rows.iter().collect();
         let shown: Vec<&str> = architecture_rows(&refs).iter().filter_map(|r| r.variant.as_deref()).collect();
         assert_eq!(shown, ["full", "conv_lstm", "no_attention"]);
+    }
+
+    #[test]
+    fn a_report_replaces_only_a_folder_a_report_wrote() {
+        let dir = std::env::temp_dir().join(format!("oneshot-report-replace-{}", std::process::id()));
+        let (out, staging) = (dir.join("out"), dir.join("staging"));
+        std::fs::create_dir_all(&staging).unwrap();
+        for name in ["index.md", "table1.md", MARKER] {
+            std::fs::write(staging.join(name), "x").unwrap();
+        }
+        assert!(check_replaceable(&out, &staging).is_ok(), "nothing there yet");
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::write(out.join("thesis.tex"), "mine").unwrap();
+        let err = check_replaceable(&out, &staging).unwrap_err().to_string();
+        assert!(err.contains("not a report"), "{err}");
+        std::fs::write(out.join("index.md"), "mine").unwrap();
+        let err = check_replaceable(&out, &staging).unwrap_err().to_string();
+        assert!(err.contains("thesis.tex") && err.contains("refusing"), "{err}");
+        std::fs::remove_file(out.join("thesis.tex")).unwrap();
+        std::fs::write(out.join("table1.md"), "old").unwrap();
+        assert!(check_replaceable(&out, &staging).is_ok(), "a report from before the marker");
+        std::fs::write(out.join("notes.txt"), "x").unwrap();
+        assert!(check_replaceable(&out, &staging).is_err());
+        std::fs::write(out.join(MARKER), "").unwrap();
+        assert!(check_replaceable(&out, &staging).is_ok(), "the marker: the whole folder is the report's");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -36,11 +36,13 @@ const SQUARE_FOVY: f64 = 45.0;
 const SQUARE: f64 = 320.0;
 const KEPT_ROWS: f64 = 140.0;
 
-/// Size of the frames handed to the policy (the authors': 240 x 320).
+/// Size of the frames handed to the policy (the authors': 240 x 320); a side left out keeps its default.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct ImageSize {
+    /// Rows of each frame.
     pub height: usize,
+    /// Columns of each frame.
     pub width: usize,
 }
 

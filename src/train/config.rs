@@ -32,6 +32,11 @@ pub const AUTHORS_WINDOW_START: f64 = 0.2;
 /// The authors' quantisation of recorded actions: multiples of 1/128 in normalised units.
 pub const AUTHORS_ACTION_RESOLUTION: u32 = 128;
 
+/// The most optimiser steps a training may ask for: far above the paper's 60,000.
+const MAX_STEPS: u64 = 100_000_000;
+/// The largest batch a training may ask for: far above the paper's 30.
+const MAX_BATCH: usize = 1 << 16;
+
 impl TrainConfig {
     /// Where training windows are drawn.
     pub fn windows(&self) -> Windows {
@@ -209,8 +214,12 @@ impl Default for TrainConfig {
 impl TrainConfig {
     /// Checks ranges; errors name the key.
     pub fn validate(&self) -> Result<()> {
-        if self.steps == 0 || self.batch_size == 0 {
-            bail!("train.steps and train.batch_size must be at least 1");
+        if !(1..=MAX_STEPS).contains(&self.steps) || !(1..=MAX_BATCH).contains(&self.batch_size) {
+            bail!(
+                "train.steps = {} and train.batch_size = {} must lie in 1..={MAX_STEPS} and 1..={MAX_BATCH}",
+                self.steps,
+                self.batch_size
+            );
         }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             bail!("train.lr = {} must be positive", self.lr);

@@ -290,6 +290,12 @@ fn a_bad_override_fails_like_a_bad_file_naming_the_key() {
         ("train.steps.x=1", "train.steps"),
         ("variants.no_inverse.train.lr=nan", "train.lr"),
         ("train.lr", "KEY=VALUE"),
+        ("train.lr=nan", "--set train.lr=nan: train.lr is not a finite number"),
+        ("train.batch_size=9223372036854775807", "train.batch_size"),
+        ("model.backbone_width=99999999999", "model.backbone_width"),
+        ("eval.episodes=1000000000000", "eval.episodes"),
+        ("profiles.cpu.train.steps=5", "--profile"),
+        ("world.image.height=7", "image size 7x"),
     ] {
         for command in ["config", "plan", "run"] {
             let mut args = vec![command, "experiments/smoke.toml", "--set", set];

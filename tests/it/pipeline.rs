@@ -837,5 +837,18 @@ references = ["expert"]
         "{table}"
     );
     assert!(lifted > 0.0 && index.contains("## After the close"), "{index}");
+    // After the pick: the expert's picked episodes, split by what followed, add up to the store's counts.
+    let expert_episodes = "SELECT COUNT(*) FROM episodes e JOIN cells c ON c.eval_key = e.eval_key \
+                           WHERE c.cell = 'expert' AND e.picked = 1";
+    let picked = count(&conn, expert_episodes);
+    let placed = count(&conn, &format!("{expert_episodes} AND e.placed = 1"));
+    let table = std::fs::read_to_string(store.join("reports/objects/carries.md")).unwrap();
+    let expert = table.lines().find(|l| l.starts_with("| expert |")).expect("the expert's row");
+    let cells: Vec<&str> = expert.split('|').map(str::trim).collect();
+    assert!(picked > 0 && cells[3] == picked.to_string(), "{picked} picked: {table}");
+    assert!(cells[4].starts_with(&format!("{placed} (")), "{placed} placed: {table}");
+    let parts: i64 = cells[4..9].iter().map(|c| c.split(' ').next().unwrap().parse::<i64>().unwrap()).sum();
+    assert_eq!(parts, picked, "every picked episode lands in one column: {table}");
+    assert!(index.contains("## After the pick") && index.contains(expert), "{index}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

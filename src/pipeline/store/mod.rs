@@ -23,7 +23,7 @@ pub mod jobs;
 pub mod read;
 
 use super::code::{self, CodeVersion};
-use super::graph::{PlannedCell, Stage};
+use super::graph::{PlannedCell, Stage, short};
 use super::stages::{Kind, StageOutputs};
 use anyhow::{Context, Result, bail};
 use read::ExperimentRecord;
@@ -524,14 +524,30 @@ impl Store {
 
     /// The artifact folder of a finished stage.
     pub fn artifact(&self, key: &str) -> Result<Option<PathBuf>> {
-        Ok(self
-            .conn
+        self.conn
             .query_row("SELECT artifact FROM stages WHERE key = ?1 AND status = 'done'", [key], |r| {
                 r.get::<_, Option<String>>(0)
             })
             .optional()?
             .flatten()
-            .map(|a| self.root.join(a)))
+            .map(|a| self.inside(key, &a))
+            .transpose()
+    }
+
+    /// The recorded artifact path `recorded` of stage `key` in the store folder, refused unless it has the
+    /// shape every artifact has, `artifacts/KIND/KEY` of plain names, so that no path in the database reaches
+    /// outside the store.
+    fn inside(&self, key: &str, recorded: &str) -> Result<PathBuf> {
+        let parts: Vec<&str> = recorded.split('/').collect();
+        let plain = parts.iter().all(|p| crate::fsio::check_plain_name("artifact", p).is_ok());
+        if parts.len() != 3 || parts[0] != "artifacts" || !plain {
+            bail!(
+                "stage {} records its artifact at {recorded:?}, not a folder artifacts/KIND/KEY of this store: the \
+                 store's database is damaged",
+                short(key)
+            );
+        }
+        Ok(self.root.join(recorded))
     }
 
     /// `artifact` relative to the store folder (as recorded), where it lies inside it.
@@ -675,6 +691,26 @@ mod tests {
         let outputs = StageOutputs { metrics: Vec::new(), episodes: Vec::new(), curve: Vec::new() };
         store.complete(&first.key, attempt, &root.join("artifacts/x"), &outputs).unwrap();
         assert_eq!(standing(&store), ["second broke"]);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn an_artifact_path_in_the_database_never_leads_outside_the_store() {
+        let root = std::env::temp_dir().join(format!("oneshot-store-artifact-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
+        let stage = &plan.stages[&plan.order[0]];
+        let mut store = Store::open(&root).unwrap();
+        store.register(&[stage]).unwrap();
+        let Claim::Acquired(attempt) = store.claim(&stage.key, false).unwrap() else { panic!("not claimed") };
+        let outputs = StageOutputs { metrics: Vec::new(), episodes: Vec::new(), curve: Vec::new() };
+        store.complete(&stage.key, attempt, &root.join("artifacts/collect/abc"), &outputs).unwrap();
+        assert_eq!(store.artifact(&stage.key).unwrap(), Some(root.join("artifacts/collect/abc")));
+        for damaged in ["/tmp/elsewhere", "artifacts/../../elsewhere", "artifacts/collect", "other/collect/abc"] {
+            store.conn.execute("UPDATE stages SET artifact = ?2 WHERE key = ?1", params![stage.key, damaged]).unwrap();
+            let err = store.artifact(&stage.key).unwrap_err().to_string();
+            assert!(err.contains("database is damaged") && err.contains(damaged), "{damaged}: {err}");
+        }
         std::fs::remove_dir_all(&root).unwrap();
     }
 

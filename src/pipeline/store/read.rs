@@ -383,6 +383,10 @@ impl Store {
         // A read-only connection still lets `ATTACH` create a file and `VACUUM INTO` write one: the authorizer
         // lets a statement only read, and a statement SQLite does not call read-only is refused too.
         conn.authorizer(Some(reads_only)).context("installing the read-only authorizer")?;
+        if what.trim().is_empty() {
+            let names: Vec<&str> = NAMED_QUERIES.iter().map(|(n, _)| *n).collect();
+            bail!("the query is empty: give a named summary ({}) or one SQL statement", names.join(", "));
+        }
         let sql = NAMED_QUERIES.iter().find(|(n, _)| *n == what).map_or(what, |(_, q)| *q);
         let mut stmt = conn.prepare(sql).with_context(|| {
             let names: Vec<&str> = NAMED_QUERIES.iter().map(|(n, _)| *n).collect();
