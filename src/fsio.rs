@@ -36,6 +36,15 @@ pub fn write_json_lines<T: serde::Serialize>(path: &Path, records: &[T]) -> Resu
     write_atomic(path, text)
 }
 
+/// The records of the JSON-lines file `path`, in order (blank lines skipped); an error names the file and line.
+pub fn read_json_lines<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let records = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    records
+        .map(|(i, l)| serde_json::from_str(l).with_context(|| format!("parsing {} line {}", path.display(), i + 1)))
+        .collect()
+}
+
 /// The hidden sibling folder `.name.partial` that a folder is built in before it is published.
 pub fn staging_sibling(dest: &Path) -> Result<PathBuf> {
     let name = dest.file_name().with_context(|| format!("{} has no folder name", dest.display()))?;

@@ -7,13 +7,16 @@ use oneshot_lab::data::loader::AugmentAt;
 use oneshot_lab::data::pairs::PairDataset;
 use oneshot_lab::device::{autotune_convolutions, parse_device};
 use oneshot_lab::eval::rollout::rollouts;
+use oneshot_lab::eval::run::SUMMARY_FILE;
 use oneshot_lab::eval::{Actor, EvalConfig, EvalOutput};
 use oneshot_lab::model::architectures::ARCHITECTURES;
 use oneshot_lab::model::batch::DeviceBatch;
 use oneshot_lab::model::config::{Architecture, ModelConfig};
 use oneshot_lab::model::resnet::ResNet18;
+use oneshot_lab::pipeline::executor::artifact_dir;
+use oneshot_lab::pipeline::integrity::seal;
 use oneshot_lab::pipeline::load_plan;
-use oneshot_lab::pipeline::stages::StageOutputs;
+use oneshot_lab::pipeline::stages::{Kind as StageKind, StageOutputs};
 use oneshot_lab::pipeline::store::{Claim, Store};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::{STATE_DIM, WorldConfig};
@@ -484,10 +487,15 @@ fn bench_plan(cells: usize) -> Result<()> {
     let (_, plan) = load_plan(&file, &Default::default())?;
     let mut store = Store::open(&store_dir)?;
     store.register(&plan.order.iter().map(|k| &plan.stages[k]).collect::<Vec<_>>())?;
-    // Benchmark set-up only: every stage is recorded finished, with no results, in an empty artifact folder.
-    for (i, k) in plan.order.iter().enumerate() {
-        let artifact = store_dir.join("artifacts").join(i.to_string());
+    // Benchmark set-up only: every stage is recorded finished, with no results, in a sealed artifact folder that
+    // is empty but for an evaluation's summary without episodes (the report reads it).
+    for k in &plan.order {
+        let artifact = artifact_dir(&store_dir, plan.stages[k].kind(), k);
         std::fs::create_dir_all(&artifact)?;
+        if plan.stages[k].kind() == StageKind::Eval {
+            std::fs::write(artifact.join(SUMMARY_FILE), "{}")?;
+        }
+        seal(&artifact)?;
         let Claim::Acquired(attempt) = store.claim(k, false)? else { bail!("a fresh store has stage {k} claimed") };
         store.complete(k, attempt, &artifact, &StageOutputs::default())?;
     }
@@ -501,6 +509,9 @@ fn bench_plan(cells: usize) -> Result<()> {
         let s = start.elapsed().as_secs_f64();
         if !out.status.success() {
             bail!("`{cmd}` failed: {}", String::from_utf8_lossy(&out.stderr));
+        }
+        if cmd == "run" && !String::from_utf8_lossy(&out.stdout).contains(": 0 stages run,") {
+            bail!("`run` found stages to run on a grid that is all cached: {}", String::from_utf8_lossy(&out.stdout));
         }
         let what = if cmd == "run" { "whole command, report included" } else { "whole command" };
         println!("  {cmd:<4}: {s:.3} s ({what})");

@@ -213,10 +213,13 @@ impl Experiment {
         for (variant, over) in &variants {
             crate::fsio::check_plain_name("variant", variant)
                 .with_context(|| format!("{file}: variant names become cell and folder names"))?;
-            // Every defined variant is checked, listed in grid.variants or not.
+            // A variant the grid does not list is typed too (its keys and their types), so a typo waits for no
+            // one; the listed ones are resolved in full below.
             let mut t = base_table.clone();
             merge(&mut t, over);
-            resolve(&t, &file, &format!("variant `{variant}`"), &text)?;
+            toml::Value::Table(t)
+                .try_into::<CellConfig>()
+                .map_err(|e| located(e, &file, &format!("variant `{variant}`"), &text))?;
         }
 
         let sweep = sweep_points(&grid.sweep).with_context(|| format!("{file}: grid.sweep"))?;

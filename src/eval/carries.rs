@@ -1,6 +1,6 @@
-//! What became of the episodes that picked the task's object, from their traces: placed, left in another quadrant,
-//! let go with the object still between the fingers yet not placed, lost from the fingers before they opened, or
-//! still held when the episode ended. It tells a pick that never held the object from a placing error.
+//! What became of the episodes that picked the task's object, from their traces: placed, set down in another
+//! quadrant, let go with the object still between the fingers yet not placed, lost from the fingers before they
+//! opened, or still held when the episode ended. It tells a pick that never held the object from a placing error.
 use super::holds::between;
 use super::{EpisodeResult, EpisodeTrace};
 use std::collections::HashMap;
@@ -12,7 +12,7 @@ pub struct CarrySummary {
     pub picked: usize,
     /// ... and placed it in the demonstrated quadrant;
     pub placed: usize,
-    /// ... left it at rest in another quadrant of the target bin;
+    /// ... set it down in another quadrant of the target bin (it rested there at some step);
     pub other_quadrant: usize,
     /// ... opened the gripper with the object between the fingers, and it rested in no quadrant;
     pub let_go: usize,
@@ -42,12 +42,15 @@ impl CarrySummary {
             }
             let steps = &by_index.get(&e.index)?.steps;
             let pick = steps.iter().position(|st| st.picked)?;
-            match steps[pick + 1..].iter().position(|st| st.action[7] <= 0.0) {
-                // The step before the opening command is the last that ran closed.
-                Some(k) if between(&steps[pick + k]) => s.let_go += 1,
-                Some(_) => s.lost += 1,
-                None if steps.last().is_some_and(between) => s.held_at_end += 1,
-                None => s.lost += 1,
+            let opens = steps[pick..].iter().position(|st| st.action[7] <= 0.0).map(|k| pick + k);
+            // The last command of an episode that ran to its end opens the gripper under the authors' protocol
+            // (`eval.binarize_gripper`): an opening there ends the episode, it releases nothing.
+            let released = opens.filter(|&o| o + 1 < steps.len());
+            let last_closed = &steps[opens.unwrap_or(steps.len()).saturating_sub(1)];
+            match (released, between(last_closed)) {
+                (Some(_), true) => s.let_go += 1,
+                (None, true) => s.held_at_end += 1,
+                (_, false) => s.lost += 1,
             }
         }
         Some(s)
@@ -111,6 +114,10 @@ mod tests {
     #[test]
     fn a_picked_episode_is_placed_elsewhere_let_go_lost_or_still_held() {
         let trace = |index, steps| EpisodeTrace { index, steps };
+        let let_go = |index| {
+            let open = step(false, true, GONE);
+            trace(index, vec![step(true, false, HELD), step(true, true, HELD), open.clone(), open])
+        };
         let results = [
             episode(0, true, true, true),
             episode(1, true, false, true),
@@ -119,27 +126,33 @@ mod tests {
             episode(4, true, false, false),
             episode(5, true, false, false),
             episode(6, false, false, false),
+            episode(7, true, false, false),
+            episode(8, true, false, false),
         ];
         let traces = [
             trace(0, vec![step(true, true, HELD)]),
             trace(1, vec![step(true, true, HELD)]),
-            // Opens with the object between the fingers: let go.
-            trace(2, vec![step(true, false, HELD), step(true, true, HELD), step(false, true, GONE)]),
+            // Opens with the object between the fingers before the last command: let go.
+            let_go(2),
             // The object left the fingers while they stayed closed, then they opened: lost.
             trace(3, vec![step(true, true, HELD), step(true, true, GONE), step(false, true, GONE)]),
             // Never opened, the object still between the fingers at the end: held.
             trace(4, vec![step(true, true, HELD), step(true, true, HELD)]),
             // Never opened, the object gone at the end: lost.
             trace(5, vec![step(true, true, HELD), step(true, true, GONE)]),
+            // Opened only by the episode's last command, the object held until then: held at the end.
+            trace(7, vec![step(true, true, HELD), step(true, true, HELD), step(false, true, GONE)]),
+            // Opened at the very step that lifted it: the step before ran closed with the object between.
+            trace(8, vec![step(true, false, HELD), step(false, true, HELD), step(false, true, GONE)]),
             trace(6, vec![step(false, false, GONE)]),
         ];
         let s = CarrySummary::of(&results, &traces).unwrap();
-        let expected = CarrySummary { picked: 6, placed: 1, other_quadrant: 1, let_go: 1, lost: 2, held_at_end: 1 };
+        let expected = CarrySummary { picked: 8, placed: 1, other_quadrant: 1, let_go: 2, lost: 2, held_at_end: 2 };
         assert_eq!(s, expected, "placed wins over the latched wrong bin");
         assert_eq!(CarrySummary::of(&results, &[]), None, "no traces kept");
         assert_eq!(CarrySummary::of(&results, &traces[..3]), None, "a picked episode without its trace");
         let pooled = CarrySummary::pooled(&[s, s]).unwrap();
-        assert_eq!((pooled.picked, pooled.lost, pooled.held_at_end), (12, 4, 2));
+        assert_eq!((pooled.picked, pooled.lost, pooled.held_at_end), (16, 4, 4));
         assert_eq!(CarrySummary::pooled(&[]), None);
     }
 }

@@ -93,17 +93,19 @@ pub fn verify(dir: &Path) -> Result<()> {
 }
 
 /// Whether stage `key` is cached: done in the store with an intact artifact folder (returned). A done stage
-/// whose artifact is missing or damaged is marked failed with the reason (the next `run` recomputes it) and
+/// whose artifact is missing or damaged, or recorded at a path outside the store, is marked failed with the reason (the next `run` recomputes it) and
 /// reported as `Err(reason)`.
 pub fn cached(store: &mut Store, key: &str) -> Result<Option<std::result::Result<PathBuf, String>>> {
     if store.state(key)? != StageState::Done {
         return Ok(None);
     }
-    let Some(artifact) = store.artifact(key)? else {
-        return Ok(None);
+    let checked = match store.artifact(key) {
+        Ok(None) => return Ok(None),
+        Ok(Some(artifact)) => verify(&artifact).map(|()| artifact),
+        Err(e) => Err(e),
     };
-    match verify(&artifact) {
-        Ok(()) => Ok(Some(Ok(artifact))),
+    match checked {
+        Ok(artifact) => Ok(Some(Ok(artifact))),
         Err(e) => {
             let reason = format!("artifact damaged, to be recomputed: {e:#}");
             store.mark_damaged(key, &reason)?;

@@ -7,17 +7,6 @@ use crate::eval::{EpisodeResult, EpisodeTrace};
 use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
 use anyhow::{Context, Result};
-use serde::de::DeserializeOwned;
-use std::path::Path;
-
-/// The records of a JSON-lines file, in order.
-fn read_lines<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let records = text.lines().filter(|l| !l.trim().is_empty()).enumerate();
-    records
-        .map(|(i, l)| serde_json::from_str(l).with_context(|| format!("parsing {} line {}", path.display(), i + 1)))
-        .collect()
-}
 
 /// A row's picked episodes pooled over its finished evaluations; none where it has none or one of them kept no
 /// traces.
@@ -30,8 +19,8 @@ fn row_carries(store: &Store, row: &ResultRow) -> Result<Option<CarrySummary>> {
         if !artifact.join(TRACES_FILE).is_file() {
             return Ok(None);
         }
-        let results: Vec<EpisodeResult> = read_lines(&artifact.join(EPISODES_FILE))?;
-        let traces: Vec<EpisodeTrace> = read_lines(&artifact.join(TRACES_FILE))?;
+        let results: Vec<EpisodeResult> = crate::fsio::read_json_lines(&artifact.join(EPISODES_FILE))?;
+        let traces: Vec<EpisodeTrace> = crate::fsio::read_json_lines(&artifact.join(TRACES_FILE))?;
         match CarrySummary::of(&results, &traces) {
             Some(c) => parts.push(c),
             None => return Ok(None),
@@ -51,7 +40,7 @@ fn share(k: usize, of: usize) -> String {
 /// The Markdown table of the rows whose evaluations all kept traces; none where no row's did.
 pub fn markdown(store: &Store, rows: &[ResultRow]) -> Result<Option<String>> {
     let mut table = String::from(
-        "| model | seeds | picked | placed | left in another quadrant | let go, not placed | lost from the fingers \
+        "| model | seeds | picked | placed | set down in another quadrant | let go, not placed | lost from the fingers \
          before they opened | still held at the end |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n",
     );
     let mut any = false;

@@ -163,11 +163,11 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
     if let Some(table) = carries::markdown(store, &rows)? {
         write("carries.md", &table)?;
         index += "\n## After the pick\n\nFrom the traces of evaluations that kept them (`eval.traces`): what became of \
-                  the episodes that picked the task's object. Placed first, then left at rest in another quadrant of \
-                  the target bin; the rest by the last step that ran with the gripper closed: the object still \
+                  the episodes that picked the task's object. Placed first, then set down in another quadrant of the \
+                  target bin (at rest there at some step); the rest by the last step that ran with the gripper closed: the object still \
                   between the fingers when the gripper opened (let go, not placed), no longer between them (lost \
-                  from the fingers: a pick that held it by an edge, or dropped it), or never opened and still held \
-                  at the end.\n\n";
+                  from the fingers: a pick that held it by an edge, or dropped it), or still held at the end (the \
+                  episode's last command, which the authors' protocol opens, not counted).\n\n";
         index += &table;
     }
     let mut per_task = Vec::with_capacity(rows.len());
@@ -210,8 +210,23 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
 /// The file every report folder carries, so that a report replaces only a folder a report wrote.
 pub const MARKER: &str = ".oneshot-lab-report";
 
+/// What a report writes only when it has rows for it: a report folder from before the marker may hold them.
+const OPTIONAL_OUTPUTS: [&str; 11] = [
+    "grasps.md",
+    "holds.md",
+    "carries.md",
+    "objects.md",
+    "tasks.csv",
+    "multi_object.md",
+    "videos",
+    "success_by_architecture.png",
+    "success_by_architecture.svg",
+    "success_vs_steps.png",
+    "success_vs_steps.svg",
+];
+
 /// Whether the existing folder `out` may be replaced by the new report in `staging`: it carries the marker, or
-/// (a report written before the marker) holds an `index.md` and nothing the new report does not also write.
+/// (a report written before the marker) holds an `index.md` and nothing but what a report writes.
 fn check_replaceable(out: &Path, staging: &Path) -> Result<()> {
     if !out.exists() || out.join(MARKER).is_file() {
         return Ok(());
@@ -222,7 +237,8 @@ fn check_replaceable(out: &Path, staging: &Path) -> Result<()> {
     let entries = std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))?;
     for entry in entries {
         let name = entry?.file_name();
-        if !staging.join(&name).exists() {
+        let optional = name.to_str().is_some_and(|n| OPTIONAL_OUTPUTS.contains(&n));
+        if !optional && !staging.join(&name).exists() {
             bail!(
                 "{} holds {:?}, which a report does not write: refusing to replace the folder (move that file \
                  away or pick another --out)",
@@ -274,7 +290,8 @@ mod tests {
         assert!(err.contains("thesis.tex") && err.contains("refusing"), "{err}");
         std::fs::remove_file(out.join("thesis.tex")).unwrap();
         std::fs::write(out.join("table1.md"), "old").unwrap();
-        assert!(check_replaceable(&out, &staging).is_ok(), "a report from before the marker");
+        std::fs::write(out.join("holds.md"), "old").unwrap();
+        assert!(check_replaceable(&out, &staging).is_ok(), "a report from before the marker, a table since dropped");
         std::fs::write(out.join("notes.txt"), "x").unwrap();
         assert!(check_replaceable(&out, &staging).is_err());
         std::fs::write(out.join(MARKER), "").unwrap();

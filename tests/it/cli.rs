@@ -174,6 +174,19 @@ fn an_unknown_architecture_to_benchmark_is_an_error_naming_it() {
 }
 
 #[test]
+fn the_orchestrator_benchmark_times_plan_and_run_on_a_grid_that_is_all_cached() {
+    let out = oneshot().args(["bench", "plan", "--cells", "20"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("22 cells, 44 stages, all cached"), "{text}");
+    for command in ["plan:", "run :"] {
+        let line = text.lines().find(|l| l.trim_start().starts_with(command)).expect(command);
+        let seconds: f64 = line.split(':').nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
+        assert!(seconds > 0.0, "{line}");
+    }
+}
+
+#[test]
 fn the_world_benchmark_times_collection_in_the_multi_object_world() {
     let args = ["bench", "world", "--objects", "library", "--episodes", "1", "--height", "32", "--width", "40"];
     let out = oneshot().args(args).output().unwrap();
