@@ -250,6 +250,9 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         None => Layouts::Fresh(training_seeds(&a.exclude_from)?),
     };
     let policy: ActorFiles = Actor::parse(&a.policy, |dir| Weights { at: dir.into(), step: a.checkpoint });
+    if let (Some(step), false) = (a.checkpoint, matches!(policy, Actor::Network(_))) {
+        bail!("--checkpoint {step} picks a trained policy's weights; the `{}` policy has none", a.policy);
+    }
     let world = match (&policy, a.frames.given()) {
         (_, false) => None,
         (Actor::Network(_), true) => {

@@ -56,7 +56,11 @@ impl ImageSize {
     /// Checks that the size can be rendered.
     pub fn validate(&self) -> Result<()> {
         if !(16..=2048).contains(&self.width) || !(16..=2048).contains(&self.height) {
-            bail!("image size {}x{} out of range: each side must be in 16..=2048", self.height, self.width);
+            bail!(
+                "world.image = {}x{} (height x width) out of range: each side must be in 16..=2048",
+                self.height,
+                self.width
+            );
         }
         Ok(())
     }

@@ -42,6 +42,19 @@ fn zero_instances_per_task_is_an_error_naming_the_flag() {
 }
 
 #[test]
+fn a_reference_policy_with_a_checkpoint_or_an_unrenderable_frame_is_refused_before_any_episode() {
+    for (args, named) in [
+        (&["--policy", "expert", "--checkpoint", "500"][..], "--checkpoint 500"),
+        (&["--policy", "random", "--height", "0"][..], "world.image = 0x"),
+    ] {
+        let out = oneshot().arg("eval").args(args).args(["--episodes", "1"]).output().unwrap();
+        assert!(!out.status.success(), "{args:?} succeeded");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(named), "{args:?}: {err}");
+    }
+}
+
+#[test]
 fn probing_zero_windows_is_an_error_naming_the_flag() {
     for extra in [&[][..], &["--at-grip"][..]] {
         let out = oneshot()
@@ -308,7 +321,7 @@ fn a_bad_override_fails_like_a_bad_file_naming_the_key() {
         ("model.backbone_width=99999999999", "model.backbone_width"),
         ("eval.episodes=1000000000000", "eval.episodes"),
         ("profiles.cpu.train.steps=5", "--profile"),
-        ("world.image.height=7", "image size 7x"),
+        ("world.image.height=7", "world.image = 7x"),
     ] {
         for command in ["config", "plan", "run"] {
             let mut args = vec![command, "experiments/smoke.toml", "--set", set];
