@@ -4,18 +4,14 @@ use super::data::ResultRow;
 use crate::eval::carries::CarrySummary;
 use crate::eval::run::{EPISODES_FILE, TRACES_FILE};
 use crate::eval::{EpisodeResult, EpisodeTrace};
-use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
-use anyhow::{Context, Result};
+use anyhow::Result;
 
 /// A row's picked episodes pooled over its finished evaluations; none where it has none or one of them kept no
 /// traces.
 fn row_carries(store: &Store, row: &ResultRow) -> Result<Option<CarrySummary>> {
     let mut parts = Vec::with_capacity(row.eval_keys.len());
-    for key in &row.eval_keys {
-        let Some(artifact) = store.artifact(key)? else { continue };
-        crate::pipeline::integrity::verify(&artifact)
-            .with_context(|| format!("eval stage {}: run the experiment again to recompute it", short(key)))?;
+    for artifact in super::holds::eval_artifacts(store, row)? {
         if !artifact.join(TRACES_FILE).is_file() {
             return Ok(None);
         }
