@@ -204,11 +204,16 @@ impl Experiment {
         let description = shape.description.clone().unwrap_or_default();
         let base_table = shape.sections();
         let (grid, variants) = (shape.grid, shape.variants);
-        reject_train_seed(&base_table, &file, "the base configuration", &text)?;
+        // A value out of range may come from a `--set`, so the base configuration's label names them.
+        let base_label = match resolution.overrides.is_empty() {
+            true => "the base configuration".to_string(),
+            false => format!("the base configuration with {}", overrides::spelled(&resolution.overrides)),
+        };
+        reject_train_seed(&base_table, &file, &base_label, &text)?;
         for (name, over) in &variants {
             reject_train_seed(over, &file, &format!("variant `{name}`"), &text)?;
         }
-        let base = resolve(&base_table, &file, "the base configuration", &text)?;
+        let base = resolve(&base_table, &file, &base_label, &text)?;
         validate_grid(&grid, &variants, &file, &text)?;
         for (variant, over) in &variants {
             crate::fsio::check_plain_name("variant", variant)
@@ -452,6 +457,8 @@ mod tests {
         assert!(err(&["world.image.height=tall"]).contains("--set world.image.height"));
         let nan = err(&["train.lr=nan"]);
         assert!(nan.starts_with("--set train.lr=nan: train.lr is not a finite number"), "{nan}");
+        let small = err(&["world.image.height=7"]);
+        assert!(small.contains("with --set world.image.height=7") && small.contains("out of range"), "{small}");
         assert!(err(&["profiles.cpu.train.steps=5"]).contains("--profile"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
