@@ -11,7 +11,7 @@ use anyhow::Result;
 /// traces.
 fn row_carries(store: &Store, row: &ResultRow) -> Result<Option<CarrySummary>> {
     let mut parts = Vec::with_capacity(row.eval_keys.len());
-    for artifact in super::holds::eval_artifacts(store, row)? {
+    for (_, artifact) in super::data::eval_artifacts(store, row)? {
         if !artifact.join(TRACES_FILE).is_file() {
             return Ok(None);
         }

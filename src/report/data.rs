@@ -1,9 +1,11 @@
 //! What a report makes of the store's records: the experiment's cells grouped into rows (one configuration over
 //! its seeds) with pooled and mean-over-seeds rates, and success against training steps.
 use crate::eval::stats::{Counts, Rate, StageRates, wilson};
+use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
 use crate::pipeline::store::read::CellRecord;
-use anyhow::Result;
+use anyhow::{Context, Result};
+use std::path::PathBuf;
 
 /// A row of a results table: one policy configuration over its seeds.
 #[derive(Debug, Clone)]
@@ -40,6 +42,18 @@ impl ResultRow {
     pub fn in_library_world(&self) -> bool {
         self.objects.as_deref() == Some("library")
     }
+}
+
+/// The artifact folders of a row's finished evaluations with their keys, each verified against its manifest.
+pub(super) fn eval_artifacts<'a>(store: &Store, row: &'a ResultRow) -> Result<Vec<(&'a str, PathBuf)>> {
+    let mut folders = Vec::with_capacity(row.eval_keys.len());
+    for key in &row.eval_keys {
+        let Some(artifact) = store.artifact(key)? else { continue };
+        crate::pipeline::integrity::verify(&artifact)
+            .with_context(|| format!("eval stage {}: run the experiment again to recompute it", short(key)))?;
+        folders.push((key.as_str(), artifact));
+    }
+    Ok(folders)
 }
 
 #[cfg(test)]

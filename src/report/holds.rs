@@ -3,7 +3,6 @@
 use super::data::ResultRow;
 use crate::eval::holds::HoldSummary;
 use crate::eval::run::SUMMARY_FILE;
-use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
 use anyhow::{Context, Result};
 use serde::Deserialize;
@@ -16,22 +15,10 @@ struct SummaryHolds {
     holds: Option<HoldSummary>,
 }
 
-/// The artifact folders of a row's finished evaluations, each verified against its manifest.
-pub(super) fn eval_artifacts(store: &Store, row: &ResultRow) -> Result<Vec<std::path::PathBuf>> {
-    let mut folders = Vec::with_capacity(row.eval_keys.len());
-    for key in &row.eval_keys {
-        let Some(artifact) = store.artifact(key)? else { continue };
-        crate::pipeline::integrity::verify(&artifact)
-            .with_context(|| format!("eval stage {}: run the experiment again to recompute it", short(key)))?;
-        folders.push(artifact);
-    }
-    Ok(folders)
-}
-
 /// A row's holds pooled over its finished evaluations; none where it has none or one of them kept no traces.
 fn row_holds(store: &Store, row: &ResultRow) -> Result<Option<HoldSummary>> {
     let mut parts = Vec::with_capacity(row.eval_keys.len());
-    for artifact in eval_artifacts(store, row)? {
+    for (_, artifact) in super::data::eval_artifacts(store, row)? {
         let path = artifact.join(SUMMARY_FILE);
         let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
         let summary: SummaryHolds =

@@ -13,10 +13,7 @@ use std::path::Path;
 pub fn copy_and_list(store: &Store, rows: &[ResultRow], staging: &Path) -> Result<String> {
     let mut lines = Vec::new();
     for row in rows {
-        for key in &row.eval_keys {
-            let Some(artifact) = store.artifact(key)? else { continue };
-            crate::pipeline::integrity::verify(&artifact)
-                .with_context(|| format!("eval stage {}: run the experiment again to recompute it", short(key)))?;
+        for (key, artifact) in super::data::eval_artifacts(store, row)? {
             let dir = artifact.join(VIDEOS_DIR);
             let Ok(entries) = std::fs::read_dir(&dir) else { continue };
             let mut names: Vec<String> = entries
