@@ -81,9 +81,13 @@ pub struct ReportArgs {
     pub file: PathBuf,
     #[command(flatten)]
     pub store: StoreArgs,
-    /// Output folder (default: STORE/reports/NAME).
+    /// Output folder (default: STORE/reports/NAME, or STORE/reports/NAME@seed-N with --seed).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Only the trained cells of this training seed (repeatable; the references, which have no seed, stay): a
+    /// per-seed report beside the pooled one.
+    #[arg(long = "seed", value_name = "N")]
+    pub seeds: Vec<u64>,
     /// Open the store without writing anything to it (automatic where this process cannot write its folder);
     /// the report then goes to `--out`, outside the store.
     #[arg(long)]
@@ -439,7 +443,9 @@ fn check_as_last_run(store: &Store, experiment: &Experiment, a: &ReportArgs) -> 
 }
 
 /// Rebuilds an experiment's tables and figures from the store alone.
-pub fn report(a: ReportArgs) -> Result<()> {
+pub fn report(mut a: ReportArgs) -> Result<()> {
+    a.seeds.sort_unstable();
+    a.seeds.dedup();
     let experiment = Experiment::load(&a.file, &a.store.resolution())?;
     let store = Store::open_for_reading(&a.store.dir.store, a.read_only)?;
     let in_store = |out: &PathBuf| {
@@ -453,8 +459,8 @@ pub fn report(a: ReportArgs) -> Result<()> {
         );
     }
     check_as_last_run(&store, &experiment, &a)?;
-    let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.dir.store, &experiment.name));
-    oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
+    let out = a.out.unwrap_or_else(|| oneshot_lab::report::report_dir(&a.store.dir.store, &experiment.name, &a.seeds));
+    oneshot_lab::report::write_report(&store, &experiment.name, &a.seeds, &out)?;
     super::print::print_table1(&out)?;
     println!("wrote {}", out.join("index.md").display());
     Ok(())

@@ -170,8 +170,8 @@ pub fn run(a: RunArgs) -> Result<()> {
         println!("  failed {}: {e}", display_name(&plan.stages[k], &labels));
     }
     if opts.only.is_none() {
-        let out = oneshot_lab::report::report_dir(root, &experiment.name);
-        oneshot_lab::report::write_report(&store, &experiment.name, &out)?;
+        let out = oneshot_lab::report::report_dir(root, &experiment.name, &[]);
+        oneshot_lab::report::write_report(&store, &experiment.name, &[], &out)?;
         super::print::print_table1(&out)?;
         println!("report: {}", out.join("index.md").display());
     }

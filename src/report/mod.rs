@@ -11,18 +11,38 @@ pub mod videos;
 use crate::config::FULL;
 use crate::pipeline::graph::short;
 use crate::pipeline::store::Store;
-use crate::pipeline::store::read::ExperimentRecord;
+use crate::pipeline::store::read::{CellRecord, ExperimentRecord};
 use anyhow::{Context, Result, bail};
 use data::ResultRow;
+use std::collections::BTreeSet;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// The code version stamped on reports: crate version and the git commit it was built from.
 pub const CODE_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+", env!("ONESHOT_GIT_COMMIT"));
 
-/// Where the report of `experiment` goes in the store folder.
-pub fn report_dir(root: &Path, experiment: &str) -> PathBuf {
-    root.join("reports").join(experiment)
+/// Where the report of `experiment` goes in the store folder: `reports/NAME`, or `reports/NAME@seed-0-1` for a
+/// report of some training seeds only (`@` is not allowed in a name, so no experiment's own report is hit).
+pub fn report_dir(root: &Path, experiment: &str, seeds: &[u64]) -> PathBuf {
+    let folder = match seeds {
+        [] => experiment.to_string(),
+        _ => format!("{experiment}@seed-{}", seeds.iter().map(u64::to_string).collect::<Vec<_>>().join("-")),
+    };
+    root.join("reports").join(folder)
+}
+
+/// The cells a report of `seeds` shows (every cell where `seeds` is empty): the trained cells of those seeds and
+/// every reference, which has no seed. A seed no trained cell has is an error naming it and the seeds there are.
+pub fn cells_of_seeds(cells: Vec<CellRecord>, experiment: &str, seeds: &[u64]) -> Result<Vec<CellRecord>> {
+    let present: BTreeSet<u64> = cells.iter().filter_map(|c| c.seed).collect();
+    if let Some(missing) = seeds.iter().find(|s| !present.contains(s)) {
+        let there = match present.is_empty() {
+            true => "it has no trained cells".to_string(),
+            false => format!("its seeds: {}", present.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")),
+        };
+        bail!("--seed {missing}: experiment `{experiment}` has no trained cell of training seed {missing} ({there})");
+    }
+    Ok(cells.into_iter().filter(|c| seeds.is_empty() || c.seed.is_none_or(|s| seeds.contains(&s))).collect())
 }
 
 fn context_table(rows: &[&ResultRow]) -> String {
@@ -53,9 +73,10 @@ fn architecture_rows<'a>(rows: &[&'a ResultRow]) -> Vec<&'a ResultRow> {
         .collect()
 }
 
-/// Writes every table and figure of `experiment` into `out` (replacing it as a whole once complete).
-pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
-    let cells = store.cells(experiment)?;
+/// Writes every table and figure of `experiment` into `out` (replacing it as a whole once complete), over the
+/// training seeds `seeds` (all where empty; [`cells_of_seeds`]).
+pub fn write_report(store: &Store, experiment: &str, seeds: &[u64], out: &Path) -> Result<()> {
+    let cells = cells_of_seeds(store.cells(experiment)?, experiment, seeds)?;
     let rows = data::rows(&cells);
     let ExperimentRecord { file, description, profile, overrides } = store.experiment(experiment)?;
     let staging = crate::fsio::staging_sibling(out)?;
@@ -65,7 +86,14 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         std::fs::write(staging.join(name), text).with_context(|| format!("writing {name}"))
     };
 
-    let caption = format!("Success rates of experiment {experiment} (pooled over seeds, 95\\% Wilson intervals).");
+    let listed = seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", ");
+    let named = format!("training seed{} {listed}", if seeds.len() > 1 { "s" } else { "" });
+    let pooled_over = match seeds.len() {
+        0 => "pooled over seeds".to_string(),
+        1 => named.clone(),
+        _ => format!("pooled over {named}"),
+    };
+    let caption = format!("Success rates of experiment {experiment} ({pooled_over}, 95\\% Wilson intervals).");
     write("table1.md", &tables::markdown(&rows))?;
     write("table1.csv", &tables::csv(&rows))?;
     write("table1.tex", &tables::latex(&rows, &caption))?;
@@ -117,6 +145,12 @@ pub fn write_report(store: &Store, experiment: &str, out: &Path) -> Result<()> {
         },
         if overrides.is_empty() { String::new() } else { format!(", overrides `{overrides}`") }
     );
+    if !seeds.is_empty() {
+        let _ = writeln!(
+            index,
+            "**Only the cells of {named}** (`report --seed`); the references, which have no seed, are all here.\n"
+        );
+    }
     index += "Every number below is recomputed from the results store (`oneshot.sqlite`); rates are pooled over \
               training seeds with 95% Wilson score intervals (`table1.csv` also has the mean over seeds with a \
               Student-t interval). A configuration without finished evaluations shows as `missing`.\n\n";
@@ -270,6 +304,42 @@ mod tests {
         let refs: Vec<&ResultRow> = rows.iter().collect();
         let shown: Vec<&str> = architecture_rows(&refs).iter().filter_map(|r| r.variant.as_deref()).collect();
         assert_eq!(shown, ["full", "conv_lstm", "no_attention"]);
+    }
+
+    fn cell(name: &str, seed: Option<u64>) -> CellRecord {
+        CellRecord {
+            cell: name.into(),
+            policy: if seed.is_some() { "model" } else { name }.into(),
+            size: seed.map(|_| 1600),
+            variant: seed.map(|_| "full".into()),
+            seed,
+            train_key: None,
+            eval_key: format!("eval-{name}"),
+            counts: None,
+            context: None,
+            architecture: None,
+            train_steps: None,
+            control: None,
+            objects: None,
+        }
+    }
+
+    #[test]
+    fn a_report_of_some_seeds_keeps_their_cells_and_every_reference() {
+        let cells = || vec![cell("n1600-full-s0", Some(0)), cell("n1600-full-s1", Some(1)), cell("expert", None)];
+        let names = |seeds: &[u64]| -> Vec<String> {
+            cells_of_seeds(cells(), "exp", seeds).unwrap().into_iter().map(|c| c.cell).collect()
+        };
+        assert_eq!(names(&[]), ["n1600-full-s0", "n1600-full-s1", "expert"]);
+        assert_eq!(names(&[1]), ["n1600-full-s1", "expert"]);
+        assert_eq!(names(&[0, 1]), names(&[]));
+        let err = cells_of_seeds(cells(), "exp", &[1, 3]).unwrap_err().to_string();
+        assert!(err.contains("--seed 3") && err.contains("`exp`") && err.contains("its seeds: 0, 1"), "{err}");
+        let err = cells_of_seeds(vec![cell("random", None)], "refs", &[0]).unwrap_err().to_string();
+        assert!(err.contains("no trained cells"), "{err}");
+        let root = Path::new("/store");
+        assert_eq!(report_dir(root, "exp", &[]), Path::new("/store/reports/exp"));
+        assert_eq!(report_dir(root, "exp", &[0, 1]), Path::new("/store/reports/exp@seed-0-1"));
     }
 
     #[test]

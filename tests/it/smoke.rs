@@ -72,5 +72,25 @@ fn the_smoke_experiment_runs_the_whole_chain_and_reports() {
     assert_eq!(html.matches("<figure><svg").count(), 3, "three figures inlined");
     assert_eq!(html.matches("src=\"data:image/gif;base64,").count(), 4, "four videos embedded");
     assert!(!html.contains(".png\"") && !html.contains("videos/"), "no reference to files beside the page");
+
+    // A report of one training seed goes beside the pooled one, says so, and keeps the references; a seed the
+    // experiment has not got is an error naming it.
+    let report_seed = |seed: &str| {
+        Command::new(env!("CARGO_BIN_EXE_oneshot-lab"))
+            .args(["report", "experiments/smoke.toml", "--seed", seed, "--store", store.to_str().unwrap()])
+            .output()
+            .unwrap()
+    };
+    let out = report_seed("0");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let seed0 = std::fs::read_to_string(store.join("reports/smoke@seed-0/index.md")).unwrap();
+    assert!(seed0.contains("Only the cells of training seed 0") && seed0.contains("| expert | 1/1 |"), "{seed0}");
+    assert!(seed0.contains("| full @ 32 | 1/1 |"), "{seed0}");
+    assert_eq!(std::fs::read_to_string(report.join("index.md")).unwrap(), index, "the pooled report is untouched");
+    let out = report_seed("7");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--seed 7") && err.contains("its seeds: 0"), "{err}");
+    assert!(!store.join("reports/smoke@seed-7").exists());
     std::fs::remove_dir_all(&store).unwrap();
 }
