@@ -40,7 +40,10 @@ pub fn cells_of_seeds(cells: Vec<CellRecord>, experiment: &str, seeds: &[u64]) -
             true => "it has no trained cells".to_string(),
             false => format!("its seeds: {}", present.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")),
         };
-        bail!("--seed {missing}: experiment `{experiment}` has no trained cell of training seed {missing} ({there})");
+        bail!(
+            "--seed {missing}: experiment `{experiment}`, as last run, has no trained cell of training seed {missing} \
+             ({there})"
+        );
     }
     Ok(cells.into_iter().filter(|c| seeds.is_empty() || c.seed.is_none_or(|s| seeds.contains(&s))).collect())
 }
@@ -93,7 +96,7 @@ pub fn write_report(store: &Store, experiment: &str, seeds: &[u64], out: &Path) 
         1 => named.clone(),
         _ => format!("pooled over {named}"),
     };
-    let caption = format!("Success rates of experiment {experiment} ({pooled_over}, 95\\% Wilson intervals).");
+    let caption = format!("Success rates of experiment {experiment} ({pooled_over}; 95\\% Wilson intervals).");
     write("table1.md", &tables::markdown(&rows))?;
     write("table1.csv", &tables::csv(&rows))?;
     write("table1.tex", &tables::latex(&rows, &caption))?;
@@ -138,22 +141,29 @@ pub fn write_report(store: &Store, experiment: &str, seeds: &[u64], out: &Path) 
     }
     let _ = writeln!(
         index,
-        "Experiment file `{file}`{}{}; code version `{CODE_VERSION}`.",
+        "Experiment file `{file}`{}{}; code version `{CODE_VERSION}`.\n",
         match &profile {
             Some(p) => format!(", profile `{p}`"),
             None => String::new(),
         },
         if overrides.is_empty() { String::new() } else { format!(", overrides `{overrides}`") }
     );
-    if !seeds.is_empty() {
-        let _ = writeln!(
-            index,
-            "**Only the cells of {named}** (`report --seed`); the references, which have no seed, are all here.\n"
-        );
-    }
-    index += "Every number below is recomputed from the results store (`oneshot.sqlite`); rates are pooled over \
+    index += &match seeds.len() {
+        0 => "Every number below is recomputed from the results store (`oneshot.sqlite`); rates are pooled over \
               training seeds with 95% Wilson score intervals (`table1.csv` also has the mean over seeds with a \
-              Student-t interval). A configuration without finished evaluations shows as `missing`.\n\n";
+              Student-t interval). A configuration without finished evaluations shows as `missing`.\n\n"
+            .to_string(),
+        n => format!(
+            "Every number below is recomputed from the results store (`oneshot.sqlite`) **from the cells of {named} \
+             only** (`report --seed`; the references, which have no seed, are all here), with 95% Wilson score \
+             intervals{}. A configuration without finished evaluations shows as `missing`.\n\n",
+            if n > 1 {
+                " (rates pooled over those seeds; `table1.csv` also has the mean over seeds with a Student-t interval)"
+            } else {
+                ""
+            }
+        ),
+    };
     index += "## Table 1: success per stage\n\n";
     index += &tables::markdown(&rows);
     index += "\nAlso as [CSV](table1.csv) and [LaTeX](table1.tex).\n\n## Context ablation (largest training set)\n\n";

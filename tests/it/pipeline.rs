@@ -207,6 +207,27 @@ fn reruns_touch_exactly_what_changed_and_reports_match_the_store() {
     let csv = cli(&["query", "SELECT COUNT(*) AS n FROM stages WHERE kind = 'collect'", "--format", "csv"]);
     assert_eq!(csv.trim(), "n\n4");
 
+    // A report of seed 2 alone: the full model's row counts seed 2's episodes only (one seed of one), beside the
+    // pooled report, which has both; the reference is in both.
+    cli(&["report", file.to_str().unwrap(), "--seed", "2"]);
+    let conn = db(&store);
+    let reached_of = |cells: &str| -> f64 {
+        let sql = format!(
+            "SELECT AVG(e.reached) FROM episodes e JOIN cells c ON c.eval_key = e.eval_key WHERE c.cell IN ({cells})"
+        );
+        conn.query_row(&sql, [], |r| r.get(0)).unwrap()
+    };
+    for (folder, cells, seeds) in
+        [("tiny@seed-2", "'n32-full-s2'", "1,1"), ("tiny", "'n32-full-s0', 'n32-full-s2'", "2,2")]
+    {
+        let table = std::fs::read_to_string(store.join("reports").join(folder).join("table1.csv")).unwrap();
+        let full = table.lines().find(|l| l.starts_with("full @ 32,")).unwrap().split(',').collect::<Vec<_>>();
+        assert_eq!(full[col("seeds_done")..=col("seeds_total")].join(","), seeds, "{folder}: {table}");
+        let reach: f64 = full[col("reach")].parse().unwrap();
+        assert!((reach - reached_of(cells)).abs() < 1e-4, "{folder}: {reach} against {}", reached_of(cells));
+        assert!(table.lines().any(|l| l.starts_with("random,")), "{folder}: {table}");
+    }
+
     // gc lists the artifacts of the replaced stages (the old collections and everything trained on them), deletes
     // them only when asked, and the current experiment stays fully cached.
     let listed = cli(&["gc", file.to_str().unwrap()]);

@@ -84,7 +84,7 @@ fn the_smoke_experiment_runs_the_whole_chain_and_reports() {
     let out = report_seed("0");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let seed0 = std::fs::read_to_string(store.join("reports/smoke@seed-0/index.md")).unwrap();
-    assert!(seed0.contains("Only the cells of training seed 0") && seed0.contains("| expert | 1/1 |"), "{seed0}");
+    assert!(seed0.contains("from the cells of training seed 0 only") && seed0.contains("| expert | 1/1 |"), "{seed0}");
     assert!(seed0.contains("| full @ 32 | 1/1 |"), "{seed0}");
     assert_eq!(std::fs::read_to_string(report.join("index.md")).unwrap(), index, "the pooled report is untouched");
     let out = report_seed("7");
