@@ -598,13 +598,19 @@ impl Store {
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_stage_another_host_runs_is_busy_and_names_its_holder() {
-        let root = std::env::temp_dir().join(format!("oneshot-store-claim-{}", std::process::id()));
+    /// A fresh store in a scratch folder named after `test`, and the smoke experiment's plan to register from.
+    fn scratch_store(test: &str) -> (PathBuf, crate::pipeline::graph::Plan, Store) {
+        let root = std::env::temp_dir().join(format!("oneshot-store-{test}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
         let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
+        let store = Store::open(&root).unwrap();
+        (root, plan, store)
+    }
+
+    #[test]
+    fn a_stage_another_host_runs_is_busy_and_names_its_holder() {
+        let (root, plan, mut store) = scratch_store("claim");
         let stage = &plan.stages[&plan.order[0]];
-        let mut store = Store::open(&root).unwrap();
         store.register(&[stage]).unwrap();
         store
             .conn
@@ -622,11 +628,8 @@ mod tests {
     fn where_each_episode_first_closed_the_gripper_round_trips_through_the_store() {
         use crate::eval::grasps::GraspSummary;
         use crate::eval::{EpisodeResult, GripperClose};
-        let root = std::env::temp_dir().join(format!("oneshot-store-grasps-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&root);
-        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
+        let (root, plan, mut store) = scratch_store("grasps");
         let stage = &plan.stages[&plan.order[0]];
-        let mut store = Store::open(&root).unwrap();
         store.register(&[stage]).unwrap();
         let Claim::Acquired(attempt) = store.claim(&stage.key, false).unwrap() else { panic!("not claimed") };
         let episode = |index: usize, picked: bool, close: Option<[f64; 3]>| EpisodeResult {
@@ -671,11 +674,8 @@ mod tests {
 
     #[test]
     fn a_failure_stops_showing_once_its_stage_is_run_again() {
-        let root = std::env::temp_dir().join(format!("oneshot-store-failures-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&root);
-        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
+        let (root, plan, mut store) = scratch_store("failures");
         let (first, second) = (&plan.stages[&plan.order[0]], &plan.stages[&plan.order[1]]);
-        let mut store = Store::open(&root).unwrap();
         store.register(&[first, second]).unwrap();
         for (stage, why) in [(first, "first broke"), (second, "second broke")] {
             let Claim::Acquired(attempt) = store.claim(&stage.key, false).unwrap() else { panic!("not claimed") };
@@ -688,7 +688,7 @@ mod tests {
         // Running the first stage again hides its old failure, whether the new attempt runs or has finished.
         let Claim::Acquired(attempt) = store.claim(&first.key, false).unwrap() else { panic!("not claimed") };
         assert_eq!(standing(&store), ["second broke"]);
-        let outputs = StageOutputs { metrics: Vec::new(), episodes: Vec::new(), curve: Vec::new() };
+        let outputs = StageOutputs::default();
         store.complete(&first.key, attempt, &root.join("artifacts/x"), &outputs).unwrap();
         assert_eq!(standing(&store), ["second broke"]);
         std::fs::remove_dir_all(&root).unwrap();
@@ -696,14 +696,11 @@ mod tests {
 
     #[test]
     fn an_artifact_path_in_the_database_never_leads_outside_the_store() {
-        let root = std::env::temp_dir().join(format!("oneshot-store-artifact-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&root);
-        let (_, plan) = crate::pipeline::load_plan(Path::new("experiments/smoke.toml"), &Default::default()).unwrap();
+        let (root, plan, mut store) = scratch_store("artifact");
         let stage = &plan.stages[&plan.order[0]];
-        let mut store = Store::open(&root).unwrap();
         store.register(&[stage]).unwrap();
         let Claim::Acquired(attempt) = store.claim(&stage.key, false).unwrap() else { panic!("not claimed") };
-        let outputs = StageOutputs { metrics: Vec::new(), episodes: Vec::new(), curve: Vec::new() };
+        let outputs = StageOutputs::default();
         store.complete(&stage.key, attempt, &root.join("artifacts/collect/abc"), &outputs).unwrap();
         assert_eq!(store.artifact(&stage.key).unwrap(), Some(root.join("artifacts/collect/abc")));
         for damaged in ["/tmp/elsewhere", "artifacts/../../elsewhere", "artifacts/collect", "other/collect/abc"] {
