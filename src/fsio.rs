@@ -83,6 +83,16 @@ pub fn remove_dir_if_present(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Removes the file `path` if it exists.
+pub fn remove_file_if_present(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("removing {}", path.display()))
+        }
+        _ => Ok(()),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

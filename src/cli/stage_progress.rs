@@ -1,7 +1,8 @@
 //! Where a running stage stands, read from what it keeps in its staging folder as it runs (readable from another
-//! machine on a shared filesystem too): a training's loss curve and checkpoints, a pretraining's curves of
-//! held-out error. `status` prints them.
+//! machine on a shared filesystem too): a training's loss curve, checkpoints and heartbeat, a pretraining's curves
+//! of held-out error. `status` prints them.
 use oneshot_lab::pipeline::stages::pretrain::{ATTENTION_CURVE_FILE, TRUNK_CURVE_FILE};
+use oneshot_lab::train::heartbeat::{self, HEARTBEAT_FILE};
 use oneshot_lab::train::pretrain::read_curve;
 use oneshot_lab::train::{CHECKPOINT_DIR, CURVE_FILE, checkpoint, curve};
 use std::path::Path;
@@ -11,7 +12,7 @@ use std::time::UNIX_EPOCH;
 /// attempt began.
 #[derive(Debug, serde::Serialize)]
 pub struct TrainingProgress {
-    /// The latest step its curve or checkpoints show.
+    /// The latest step its curve, checkpoints or heartbeat show.
     pub step: u64,
     /// The steps it trains in all.
     pub steps: u64,
@@ -162,9 +163,13 @@ pub fn training(staging: &Path, steps: u64, started_at: f64) -> Option<TrainingP
     let checkpointed = checkpoint::latest(&checkpoints).ok().flatten();
     let checkpoint_written = checkpointed.as_ref().and_then(|(_, path)| written_at(path));
     let checkpointed = checkpointed.map_or(0, |(step, _)| step);
+    // The heartbeat comes every few seconds; one written before this attempt began is a killed attempt's.
+    let beat = heartbeat::read(&staging.join(HEARTBEAT_FILE)).filter(|b| b.at > started_at);
     let step = points.iter().map(|p| p.step).max().unwrap_or(0).max(checkpointed).max(resumed_from);
+    let step = step.max(beat.map_or(0, |b| b.step));
     let latest = |split: &str| points.iter().filter(|p| p.split == split).max_by_key(|p| p.step).map(|p| p.bc);
-    let recorded_at = [curve_written, checkpoint_written].into_iter().flatten().fold(started_at, f64::max);
+    let recorded_at =
+        [curve_written, checkpoint_written, beat.map(|b| b.at)].into_iter().flatten().fold(started_at, f64::max);
     let (steps_per_second, seconds_left) =
         pace(step - resumed_from, recorded_at - started_at, steps.saturating_sub(step));
     Some(TrainingProgress {
@@ -276,6 +281,16 @@ mod tests {
             (p.step, p.train_bc, p.steps_per_second, p.seconds_left),
             (2000, Some(1.5), Some(10.0), Some(200.0))
         );
+        // A heartbeat written by this attempt gives the step between curve points; a killed attempt's does not.
+        let beat = |step, at| {
+            let text = serde_json::to_vec(&heartbeat::Heartbeat { step, at }).unwrap();
+            std::fs::write(dir.join(HEARTBEAT_FILE), text).unwrap();
+        };
+        beat(2600, started + 160.0);
+        let p = training(&dir, 4000, started).unwrap();
+        assert_eq!((p.step, p.steps_per_second, p.seconds_left), (2600, Some(10.0), Some(140.0)));
+        beat(2900, started - 1.0);
+        assert_eq!(training(&dir, 4000, started).unwrap().step, 2000, "a heartbeat from before this attempt");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

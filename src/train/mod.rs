@@ -4,6 +4,7 @@ pub mod adam;
 pub mod checkpoint;
 pub mod config;
 pub mod curve;
+pub mod heartbeat;
 pub mod pretrain;
 pub mod stop;
 pub mod tensorboard;
@@ -11,6 +12,7 @@ pub mod throughput;
 
 use crate::data::loader::{AugmentAt, Batch, PrefetchSpec, Prefetcher, build_batch};
 use crate::data::pairs::{PairDataset, Split};
+use crate::fsio;
 use crate::model::architectures::transformer::SELECTION_TRUNK;
 use crate::model::batch::DeviceBatch;
 use crate::model::config::{ModelConfig, ObjectAttentionInput};
@@ -260,6 +262,8 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
     let mut loader = Prefetcher::start(data.clone(), spec);
     let bar = crate::progress::progress_bar(config.steps, run.progress, "train");
     bar.set_position(start);
+    let heartbeat_path = run.out.join(heartbeat::HEARTBEAT_FILE);
+    let mut beater = heartbeat::Beater::new(heartbeat::HEARTBEAT_EVERY);
     let mut window = TrainWindow::default();
     for step in start + 1..=config.steps {
         // Dropout draws depend on the step alone, so a resumed run repeats the uninterrupted one exactly.
@@ -300,10 +304,12 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
                 config.steps
             );
         }
+        beater.tick(&heartbeat_path, step)?;
         bar.inc(1);
     }
     bar.finish_and_clear();
     drop(loader);
+    fsio::remove_file_if_present(&heartbeat_path)?;
     checkpoint::save(&vs, &run.out.join(FINAL_WEIGHTS))?;
     let vals: Vec<f64> = curve.iter().filter(|p| p.split == "val").map(|p| p.bc).collect();
     let summary = TrainSummary {

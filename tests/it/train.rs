@@ -223,6 +223,12 @@ fn a_training_told_to_stop_by_signal_checkpoints_and_the_next_run_resumes_there(
     wait_for(HANG_GUARD, std::time::Duration::from_millis(200), || {
         out.join("curve.jsonl").exists().then_some(()).ok_or_else(|| "the training wrote no curve".to_string())
     });
+    // Between curve points its heartbeat says which step it is at (what `status` reads).
+    let heartbeat = out.join(oneshot_lab::train::heartbeat::HEARTBEAT_FILE);
+    wait_for(HANG_GUARD, std::time::Duration::from_millis(200), || {
+        let beat = oneshot_lab::train::heartbeat::read(&heartbeat).ok_or_else(|| "no heartbeat yet".to_string())?;
+        (beat.step >= 1).then_some(()).ok_or_else(|| format!("heartbeat at step {}", beat.step))
+    });
     std::thread::sleep(std::time::Duration::from_secs(2));
     unsafe { libc::kill(child.id() as i32, libc::SIGUSR1) };
     let stopped = child.wait_with_output().unwrap();
@@ -238,5 +244,6 @@ fn a_training_told_to_stop_by_signal_checkpoints_and_the_next_run_resumes_there(
     let info: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join(oneshot_lab::train::FINAL_INFO)).unwrap()).unwrap();
     assert_eq!(info["resumed_from"], serde_json::json!(step));
+    assert!(!heartbeat.exists(), "a finished training leaves no heartbeat in its folder");
     let _ = std::fs::remove_dir_all(&dir);
 }
