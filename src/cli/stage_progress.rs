@@ -8,8 +8,8 @@ use oneshot_lab::train::{CHECKPOINT_DIR, CURVE_FILE, checkpoint, curve};
 use std::path::Path;
 use std::time::UNIX_EPOCH;
 
-/// A running training: its latest curve point or checkpoint against its total steps, and its pace since this
-/// attempt began.
+/// A running training: its latest curve point, checkpoint or heartbeat against its total steps, and its pace in
+/// this attempt.
 #[derive(Debug, serde::Serialize)]
 pub struct TrainingProgress {
     /// The latest step its curve, checkpoints or heartbeat show.
@@ -21,8 +21,8 @@ pub struct TrainingProgress {
     /// The latest training and validation BC on its curve.
     pub train_bc: Option<f64>,
     pub val_bc: Option<f64>,
-    /// This attempt's pace up to its latest record (none before its first), and the time the steps left would
-    /// take at it.
+    /// This attempt's pace, from its heartbeat where it has one (none before the heartbeat's second write), else
+    /// up to its latest record (none before its first); and the time the steps left would take at it.
     pub steps_per_second: Option<f64>,
     pub seconds_left: Option<f64>,
 }
@@ -163,15 +163,22 @@ pub fn training(staging: &Path, steps: u64, started_at: f64) -> Option<TrainingP
     let checkpointed = checkpoint::latest(&checkpoints).ok().flatten();
     let checkpoint_written = checkpointed.as_ref().and_then(|(_, path)| written_at(path));
     let checkpointed = checkpointed.map_or(0, |(step, _)| step);
-    // The heartbeat comes every few seconds; one written before this attempt began is a killed attempt's.
-    let beat = heartbeat::read(&staging.join(HEARTBEAT_FILE)).filter(|b| b.at > started_at);
     let step = points.iter().map(|p| p.step).max().unwrap_or(0).max(checkpointed).max(resumed_from);
-    let step = step.max(beat.map_or(0, |b| b.step));
     let latest = |split: &str| points.iter().filter(|p| p.split == split).max_by_key(|p| p.step).map(|p| p.bc);
-    let recorded_at =
-        [curve_written, checkpoint_written, beat.map(|b| b.at)].into_iter().flatten().fold(started_at, f64::max);
-    let (steps_per_second, seconds_left) =
-        pace(step - resumed_from, recorded_at - started_at, steps.saturating_sub(step));
+    // The heartbeat comes every few seconds, and its pace leaves out the start-up; one first written before this
+    // attempt began is a stopped attempt's.
+    let (step, (steps_per_second, seconds_left)) =
+        match heartbeat::read(&staging.join(HEARTBEAT_FILE)).filter(|b| b.first_at > started_at) {
+            Some(beat) => {
+                let step = step.max(beat.step);
+                let rate = beat.steps_per_second();
+                (step, (rate, rate.map(|rate| steps.saturating_sub(step) as f64 / rate)))
+            }
+            None => {
+                let recorded_at = [curve_written, checkpoint_written].into_iter().flatten().fold(started_at, f64::max);
+                (step, pace(step - resumed_from, recorded_at - started_at, steps.saturating_sub(step)))
+            }
+        };
     Some(TrainingProgress {
         step,
         steps,
@@ -282,14 +289,19 @@ mod tests {
             (2000, Some(1.5), Some(10.0), Some(200.0))
         );
         // A heartbeat written by this attempt gives the step between curve points; a killed attempt's does not.
-        let beat = |step, at| {
-            let text = serde_json::to_vec(&heartbeat::Heartbeat { step, at }).unwrap();
+        // Its pace runs from the heartbeat's first write, leaving out the start-up.
+        let beat = |step, at, first_step, first_at| {
+            let text = serde_json::to_vec(&heartbeat::Heartbeat { step, at, first_step, first_at }).unwrap();
             std::fs::write(dir.join(HEARTBEAT_FILE), text).unwrap();
         };
-        beat(2600, started + 160.0);
+        beat(1001, started + 40.0, 1001, started + 40.0);
         let p = training(&dir, 4000, started).unwrap();
-        assert_eq!((p.step, p.steps_per_second, p.seconds_left), (2600, Some(10.0), Some(140.0)));
-        beat(2900, started - 1.0);
+        assert_eq!((p.step, p.steps_per_second), (2000, None), "one heartbeat: no pace yet");
+        beat(2600, started + 160.0, 1001, started + 40.0);
+        let p = training(&dir, 4000, started).unwrap();
+        assert_eq!((p.step, p.steps_per_second.map(|r| (r * 1e6).round() / 1e6)), (2600, Some(13.325)));
+        assert_eq!(p.seconds_left.map(|s| s.round()), Some(105.0), "1,400 steps left at 1,599 steps in 120 s");
+        beat(2900, started + 10.0, 2000, started - 1.0);
         assert_eq!(training(&dir, 4000, started).unwrap().step, 2000, "a heartbeat from before this attempt");
         std::fs::remove_dir_all(&dir).unwrap();
     }

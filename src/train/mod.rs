@@ -12,7 +12,6 @@ pub mod throughput;
 
 use crate::data::loader::{AugmentAt, Batch, PrefetchSpec, Prefetcher, build_batch};
 use crate::data::pairs::{PairDataset, Split};
-use crate::fsio;
 use crate::model::architectures::transformer::SELECTION_TRUNK;
 use crate::model::batch::DeviceBatch;
 use crate::model::config::{ModelConfig, ObjectAttentionInput};
@@ -304,12 +303,12 @@ pub fn train(model: &ModelConfig, config: &TrainConfig, run: &TrainRun) -> Resul
                 config.steps
             );
         }
-        beater.tick(&heartbeat_path, step)?;
+        beater.tick(&heartbeat_path, step);
         bar.inc(1);
     }
     bar.finish_and_clear();
     drop(loader);
-    fsio::remove_file_if_present(&heartbeat_path)?;
+    heartbeat::remove(&heartbeat_path)?;
     checkpoint::save(&vs, &run.out.join(FINAL_WEIGHTS))?;
     let vals: Vec<f64> = curve.iter().filter(|p| p.split == "val").map(|p| p.bc).collect();
     let summary = TrainSummary {

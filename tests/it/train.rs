@@ -227,7 +227,7 @@ fn a_training_told_to_stop_by_signal_checkpoints_and_the_next_run_resumes_there(
     let heartbeat = out.join(oneshot_lab::train::heartbeat::HEARTBEAT_FILE);
     wait_for(HANG_GUARD, std::time::Duration::from_millis(200), || {
         let beat = oneshot_lab::train::heartbeat::read(&heartbeat).ok_or_else(|| "no heartbeat yet".to_string())?;
-        (beat.step >= 1).then_some(()).ok_or_else(|| format!("heartbeat at step {}", beat.step))
+        (beat.step >= 1 && beat.at >= beat.first_at).then_some(()).ok_or_else(|| format!("heartbeat {beat:?}"))
     });
     std::thread::sleep(std::time::Duration::from_secs(2));
     unsafe { libc::kill(child.id() as i32, libc::SIGUSR1) };
