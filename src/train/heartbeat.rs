@@ -66,11 +66,11 @@ impl Beater {
         let (first_step, first_at) = *self.first.get_or_insert((step, at));
         let beat = Heartbeat { step, at, first_step, first_at };
         let written = serde_json::to_vec(&beat).map_err(anyhow::Error::from).and_then(|b| fsio::write_atomic(path, b));
-        if let Err(e) = written {
-            if !self.warned {
-                eprintln!("warning: the training's heartbeat (what `status` reads) could not be written: {e:#}");
-                self.warned = true;
-            }
+        if let Err(e) = written
+            && !self.warned
+        {
+            eprintln!("warning: the training's heartbeat (what `status` reads) could not be written: {e:#}");
+            self.warned = true;
         }
         self.last = Some(Instant::now());
     }
