@@ -1,7 +1,10 @@
 //! Benchmarks that print figures: training step rate and memory beside the trunk alone, the data path's samples
 //! per second, evaluation rollouts per second, and the orchestrator's overhead on a large cached grid.
+use super::config::chosen_config;
 use super::default_workers;
+use super::options::ResolutionArgs;
 use anyhow::{Context, Result, bail};
+use oneshot_lab::config::Experiment;
 use oneshot_lab::data::augment::Augmentation;
 use oneshot_lab::data::loader::AugmentAt;
 use oneshot_lab::data::pairs::PairDataset;
@@ -34,8 +37,17 @@ use tch::{Device, Kind, Tensor, nn};
 #[derive(clap::Args)]
 pub struct BenchTrainArgs {
     /// Model, frame size and batch to time.
-    #[arg(long, value_enum, default_value_t = BenchSize::Small)]
+    #[arg(long, value_enum, default_value_t = BenchSize::Small, conflicts_with = "experiment")]
     pub config: BenchSize,
+    /// Times this experiment file's configuration instead (its base, or `--cell`): its model, frame size, batch,
+    /// loss weights, precision and memory format, with fresh weights on random frames.
+    #[arg(long)]
+    pub experiment: Option<PathBuf>,
+    /// The cell of `--experiment` to time (e.g. `n1600-full-s0`).
+    #[arg(long, requires = "experiment")]
+    pub cell: Option<String>,
+    #[command(flatten)]
+    pub file_resolution: ResolutionArgs,
     /// Training steps timed (after one warm-up step).
     #[arg(long, default_value_t = 5)]
     pub steps: usize,
@@ -48,12 +60,12 @@ pub struct BenchTrainArgs {
     /// Architectures to time, comma separated, or `all` (default: the configuration's, the transformer).
     #[arg(long)]
     pub architectures: Option<String>,
-    /// Number type of the forward pass, as `train.precision`.
-    #[arg(long, value_enum, default_value_t = PrecisionArg::Fp32)]
-    pub precision: PrecisionArg,
-    /// Layout of the trunk's images, as `train.memory_format`.
-    #[arg(long, value_enum, default_value_t = MemoryFormatArg::Contiguous)]
-    pub memory_format: MemoryFormatArg,
+    /// Number type of the forward pass, as `train.precision` (default: the experiment's, else fp32).
+    #[arg(long, value_enum)]
+    pub precision: Option<PrecisionArg>,
+    /// Layout of the trunk's images, as `train.memory_format` (default: the experiment's, else contiguous).
+    #[arg(long, value_enum)]
+    pub memory_format: Option<MemoryFormatArg>,
 }
 
 /// A benchmark configuration: model, frame size and batch.
@@ -154,7 +166,27 @@ pub enum AugmentOnArg {
 
 /// `bench train`: a configuration's training step rate beside its trunk alone.
 pub fn train(a: BenchTrainArgs) -> Result<()> {
-    let mut c = bench_config(a.config);
+    let resolution = a.file_resolution.resolution();
+    let mut c = match &a.experiment {
+        Some(file) => {
+            let experiment = Experiment::load(file, &resolution)?;
+            let (what, config) = chosen_config(&experiment, file, a.cell.as_deref())?;
+            BenchConfig {
+                name: format!("{}, {what}", file.display()),
+                model: config.model.clone(),
+                image: config.world.image,
+                batch: config.train.batch_size,
+                loss: config.train.loss.clone(),
+                precision: config.train.precision,
+                memory_format: config.train.memory_format,
+                projected_steps: usize::try_from(config.train.steps)?,
+            }
+        }
+        None if resolution.profile.is_some() || !resolution.overrides.is_empty() => {
+            bail!("--profile and --set resolve an experiment file: give it with --experiment")
+        }
+        None => bench_config(a.config),
+    };
     c.batch = a.batch.unwrap_or(c.batch);
     let architectures: Vec<String> = match a.architectures.as_deref() {
         None => vec![c.model.architecture.0.clone()],
@@ -165,15 +197,17 @@ pub fn train(a: BenchTrainArgs) -> Result<()> {
         let names: Vec<&str> = ARCHITECTURES.iter().map(|r| r.name).collect();
         bail!("--architectures names `{unknown}`, which is not registered (all, {})", names.join(", "));
     }
-    let precision = match a.precision {
-        PrecisionArg::Fp32 => Precision::Fp32,
-        PrecisionArg::Bf16 => Precision::Bf16,
-    };
-    let memory_format = match a.memory_format {
-        MemoryFormatArg::Contiguous => MemoryFormat::Contiguous,
-        MemoryFormatArg::ChannelsLast => MemoryFormat::ChannelsLast,
-    };
-    bench_train(&c, a.steps.max(1), &a.device, &architectures, (precision, memory_format))
+    match a.precision {
+        Some(PrecisionArg::Fp32) => c.precision = Precision::Fp32,
+        Some(PrecisionArg::Bf16) => c.precision = Precision::Bf16,
+        None => {}
+    }
+    match a.memory_format {
+        Some(MemoryFormatArg::Contiguous) => c.memory_format = MemoryFormat::Contiguous,
+        Some(MemoryFormatArg::ChannelsLast) => c.memory_format = MemoryFormat::ChannelsLast,
+        None => {}
+    }
+    bench_train(&c, a.steps.max(1), &a.device, &architectures)
 }
 
 /// `bench eval`: rollouts per second of a small network and of the random policy.
@@ -233,28 +267,41 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
     Ok(())
 }
 
-/// Model, frame size and batch of a benchmark configuration.
+/// What a training benchmark times: model, frame size, batch, loss weights and number formats.
 struct BenchConfig {
-    name: &'static str,
+    name: String,
     model: ModelConfig,
     image: ImageSize,
     batch: usize,
+    loss: LossWeights,
+    precision: Precision,
+    memory_format: MemoryFormat,
+    /// Training steps whose hours the table projects: the paper's, or the cell's `train.steps`.
+    projected_steps: usize,
 }
 
 /// The configuration `--config` names.
 fn bench_config(size: BenchSize) -> BenchConfig {
     match size {
         BenchSize::Paper => BenchConfig {
-            name: "paper",
+            name: "paper".into(),
             model: ModelConfig::default(),
             image: ImageSize { height: 240, width: 320 },
             batch: 30,
+            loss: LossWeights::default(),
+            precision: Precision::Fp32,
+            memory_format: MemoryFormat::Contiguous,
+            projected_steps: PAPER_STEPS,
         },
         BenchSize::Small => BenchConfig {
-            name: "small",
+            name: "small".into(),
             model: ModelConfig { backbone_width: 16, attention_inner: 32, embed_hidden: 64, ..ModelConfig::default() },
             image: ImageSize { height: 64, width: 80 },
             batch: 8,
+            loss: LossWeights::default(),
+            precision: Precision::Fp32,
+            memory_format: MemoryFormat::Contiguous,
+            projected_steps: PAPER_STEPS,
         },
     }
 }
@@ -307,13 +354,8 @@ fn reset_peak_rss() -> bool {
 
 /// Times `steps` full training steps of each architecture, then the ResNet-18 trunk's forward + backward on the
 /// same frames.
-fn bench_train(
-    c: &BenchConfig,
-    steps: usize,
-    device: &str,
-    architectures: &[String],
-    (precision, memory_format): (Precision, MemoryFormat),
-) -> Result<()> {
+fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[String]) -> Result<()> {
+    let (precision, memory_format) = (c.precision, c.memory_format);
     let device = parse_device(device)?;
     autotune_convolutions(device);
     tch::manual_seed(0);
@@ -334,9 +376,15 @@ fn bench_train(
     );
     println!(
         "  {:<18} {:>12} {:>10} {:>9} {:>10} {:>12} {:>10}",
-        "architecture", "parameters", "s/step", "steps/s", "samples/s", "peak memory", "60k steps"
+        "architecture",
+        "parameters",
+        "s/step",
+        "steps/s",
+        "samples/s",
+        "peak memory",
+        format!("{} steps", c.projected_steps)
     );
-    let weights = LossWeights::default();
+    let weights = &c.loss;
     let mut parts = Vec::new();
     for name in architectures {
         let model = ModelConfig { architecture: Architecture::named(name), ..c.model.clone() };
@@ -373,7 +421,7 @@ fn bench_train(
             "  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {:>10.1} {memory:>12} {:>10.2}",
             1.0 / s,
             c.batch as f64 / s,
-            PAPER_STEPS as f64 * s / 3600.0
+            c.projected_steps as f64 * s / 3600.0
         );
     }
 
@@ -407,7 +455,8 @@ fn bench_train(
     if device.is_cuda() {
         println!("  peak memory: GPU memory this process holds (nvidia-smi), the most any step so far needed");
     }
-    println!("  60k steps: hours for the paper's {PAPER_STEPS} training steps at this rate");
+    let whose = if c.projected_steps == PAPER_STEPS { "the paper's" } else { "the cell's" };
+    println!("  {0} steps: hours for {whose} {0} training steps at this rate", c.projected_steps);
     Ok(())
 }
 

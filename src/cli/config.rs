@@ -3,7 +3,7 @@
 use super::options::ResolutionArgs;
 use anyhow::{Result, bail};
 use oneshot_lab::config::{CellConfig, Experiment};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Arguments of the `config` command.
 #[derive(clap::Args)]
@@ -33,16 +33,7 @@ pub enum ConfigFormat {
 pub fn config(a: ConfigArgs) -> Result<()> {
     let resolution = a.file_resolution.resolution();
     let experiment = Experiment::load(&a.file, &resolution)?;
-    let (what, config) = match &a.cell {
-        None => ("the base configuration".to_string(), &experiment.base),
-        Some(name) => match experiment.cells.iter().find(|c| &c.name == name) {
-            Some(cell) => (format!("cell {name}"), &cell.config),
-            None => {
-                let names: Vec<&str> = experiment.cells.iter().map(|c| c.name.as_str()).collect();
-                bail!("{}: no cell `{name}` (cells: {})", a.file.display(), names.join(", "));
-            }
-        },
-    };
+    let (what, config) = chosen_config(&experiment, &a.file, a.cell.as_deref())?;
     let value = toml::Value::try_from(config)?;
     let defaults = toml::Value::try_from(CellConfig::default())?;
     let (toml::Value::Table(value), toml::Value::Table(defaults)) = (value, defaults) else {
@@ -67,6 +58,25 @@ pub fn config(a: ConfigArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The configuration of one cell of `experiment` (read from `file`), or its base without a cell, and how to name
+/// it; an unknown cell is an error naming the file and listing the cells.
+pub(super) fn chosen_config<'a>(
+    experiment: &'a Experiment,
+    file: &Path,
+    cell: Option<&str>,
+) -> Result<(String, &'a CellConfig)> {
+    let Some(name) = cell else {
+        return Ok(("the base configuration".to_string(), &experiment.base));
+    };
+    match experiment.cells.iter().find(|c| c.name == name) {
+        Some(cell) => Ok((format!("cell {name}"), &cell.config)),
+        None => {
+            let names: Vec<&str> = experiment.cells.iter().map(|c| c.name.as_str()).collect();
+            bail!("{}: no cell `{name}` (cells: {})", file.display(), names.join(", "))
+        }
+    }
 }
 
 /// `table` as TOML under the header `prefix`: its values first, then its tables, each value that differs from

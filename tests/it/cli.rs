@@ -1,5 +1,6 @@
 //! The command line's handling of bad input: one clear error line and a non-zero exit.
 use crate::helpers::{oneshot, scratch};
+use std::path::Path;
 
 /// 32x40 frames of collision geometry: collected about four times faster than with the visual meshes on Mesa.
 const SMALL_FRAMES: [&str; 6] = ["--height", "32", "--width", "40", "--visuals", "collision"];
@@ -184,6 +185,47 @@ fn an_unknown_architecture_to_benchmark_is_an_error_naming_it() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--architectures") && err.contains("transfomer"), "{err}");
+}
+
+#[test]
+fn the_training_benchmark_times_an_experiment_cell_as_its_file_configures_it() {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("experiments/learn_cpu16_motion_96.toml");
+    let cell = "n1600-state_16k_motion_bf16-s1";
+    let bench = |extra: &[&str]| {
+        let mut args = vec!["bench", "train", "--experiment", file.to_str().unwrap(), "--cell", cell];
+        args.extend(["--steps", "1", "--batch", "2", "--device", "cpu"]);
+        args.extend(extra);
+        let out = oneshot().env("OMP_NUM_THREADS", "1").args(&args).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let text = bench(&[]);
+    let header = text.lines().next().unwrap();
+    assert!(header.contains(&format!("cell {cell}")), "{header}");
+    // The cell's frame size, the batch given, and the cell's bf16 and channels-last (the flags' defaults are fp32
+    // and contiguous).
+    assert!(header.contains("96x128 frames, batch 2 (22 frames per step)"), "{header}");
+    assert!(header.ends_with("Bf16, ChannelsLast"), "{header}");
+    assert!(text.contains("16000 steps: hours for the cell's 16000 training steps"), "{text}");
+    let row = text.lines().find(|l| l.trim_start().starts_with("transformer ")).expect("a transformer row");
+    let steps_per_second: f64 = row.split_whitespace().nth(3).unwrap().parse().unwrap();
+    assert!(steps_per_second > 0.0, "{row}");
+    let fp32 = bench(&["--precision", "fp32"]);
+    assert!(fp32.lines().next().unwrap().ends_with("Fp32, ChannelsLast"), "{fp32}");
+}
+
+#[test]
+fn a_training_benchmark_of_an_unknown_cell_or_a_stray_override_is_an_error_naming_it() {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("experiments/learn_cpu16_motion_96.toml");
+    let args = ["bench", "train", "--experiment", file.to_str().unwrap(), "--cell", "n1600-nope-s0", "--device", "cpu"];
+    let out = oneshot().args(args).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("learn_cpu16_motion_96.toml") && err.contains("no cell `n1600-nope-s0`"), "{err}");
+    let out = oneshot().args(["bench", "train", "--set", "train.batch_size=4", "--device", "cpu"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--experiment"), "{err}");
 }
 
 #[test]
