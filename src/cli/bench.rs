@@ -23,8 +23,9 @@ use oneshot_lab::pipeline::stages::{Kind as StageKind, StageOutputs};
 use oneshot_lab::pipeline::store::{Claim, Store};
 use oneshot_lab::sim::camera::ImageSize;
 use oneshot_lab::sim::env::{STATE_DIM, WorldConfig};
+use oneshot_lab::sim::task::NUM_TASKS;
 use oneshot_lab::train::adam::Adam;
-use oneshot_lab::train::config::{LossWeights, MemoryFormat, Precision, TrainConfig, check_precision};
+use oneshot_lab::train::config::{MemoryFormat, Precision, TrainConfig, check_heads, check_precision};
 use oneshot_lab::train::throughput;
 use oneshot_lab::train::{FINAL_INFO, FINAL_WEIGHTS, TrainSummary, build_policy, checkpoint, load_trained};
 use std::collections::HashSet;
@@ -36,11 +37,12 @@ use tch::{Device, Kind, Tensor, nn};
 /// Arguments of the `bench train` command.
 #[derive(clap::Args)]
 pub struct BenchTrainArgs {
-    /// Model, frame size and batch to time.
+    /// Model, frame size and batch to time (not with `--experiment`).
     #[arg(long, value_enum, default_value_t = BenchSize::Small, conflicts_with = "experiment")]
     pub config: BenchSize,
     /// Times this experiment file's configuration instead (its base, or `--cell`): its model, frame size, batch,
-    /// loss weights, precision and memory format, with fresh weights on random frames.
+    /// training settings and device, with fresh weights on random frames. The data path is not timed (`bench
+    /// loader` times it), on-device augmentation included.
     #[arg(long)]
     pub experiment: Option<PathBuf>,
     /// The cell of `--experiment` to time (e.g. `n1600-full-s0`).
@@ -48,16 +50,19 @@ pub struct BenchTrainArgs {
     pub cell: Option<String>,
     #[command(flatten)]
     pub file_resolution: ResolutionArgs,
-    /// Training steps timed (after one warm-up step).
+    /// Training steps timed (after the warm-up steps).
     #[arg(long, default_value_t = 5)]
     pub steps: usize,
+    /// Untimed steps first (libtorch's first steps on a CPU run slower).
+    #[arg(long, default_value_t = 3)]
+    pub warmup: usize,
     /// Override the configuration's batch size.
     #[arg(long)]
     pub batch: Option<usize>,
-    /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N`.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
-    /// Architectures to time, comma separated, or `all` (default: the configuration's, the transformer).
+    /// `auto` (CUDA when present), `cpu`, `cuda` or `cuda:N` (default: the experiment's `train.device`, else `auto`).
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Architectures to time, comma separated, or `all` (default: the experiment's, else the transformer).
     #[arg(long)]
     pub architectures: Option<String>,
     /// Number type of the forward pass, as `train.precision` (default: the experiment's, else fp32).
@@ -171,15 +176,14 @@ pub fn train(a: BenchTrainArgs) -> Result<()> {
         Some(file) => {
             let experiment = Experiment::load(file, &resolution)?;
             let (what, config) = chosen_config(&experiment, file, a.cell.as_deref())?;
+            let whose = if a.cell.is_some() { "the cell's" } else { "the experiment's" };
             BenchConfig {
                 name: format!("{}, {what}", file.display()),
                 model: config.model.clone(),
                 image: config.world.image,
                 batch: config.train.batch_size,
-                loss: config.train.loss.clone(),
-                precision: config.train.precision,
-                memory_format: config.train.memory_format,
-                projected_steps: usize::try_from(config.train.steps)?,
+                train: config.train.clone(),
+                projected: (usize::try_from(config.train.steps)?, whose),
             }
         }
         None if resolution.profile.is_some() || !resolution.overrides.is_empty() => {
@@ -198,16 +202,20 @@ pub fn train(a: BenchTrainArgs) -> Result<()> {
         bail!("--architectures names `{unknown}`, which is not registered (all, {})", names.join(", "));
     }
     match a.precision {
-        Some(PrecisionArg::Fp32) => c.precision = Precision::Fp32,
-        Some(PrecisionArg::Bf16) => c.precision = Precision::Bf16,
+        Some(PrecisionArg::Fp32) => c.train.precision = Precision::Fp32,
+        Some(PrecisionArg::Bf16) => c.train.precision = Precision::Bf16,
         None => {}
     }
     match a.memory_format {
-        Some(MemoryFormatArg::Contiguous) => c.memory_format = MemoryFormat::Contiguous,
-        Some(MemoryFormatArg::ChannelsLast) => c.memory_format = MemoryFormat::ChannelsLast,
+        Some(MemoryFormatArg::Contiguous) => c.train.memory_format = MemoryFormat::Contiguous,
+        Some(MemoryFormatArg::ChannelsLast) => c.train.memory_format = MemoryFormat::ChannelsLast,
         None => {}
     }
-    bench_train(&c, a.steps.max(1), &a.device, &architectures)
+    if let Some(device) = a.device {
+        c.train.device = device;
+    }
+    let timing = Timing { warmup: a.warmup, steps: a.steps.max(1) };
+    bench_train(&c, timing, &architectures)
 }
 
 /// `bench eval`: rollouts per second of a small network and of the random policy.
@@ -267,17 +275,23 @@ pub fn loader(a: BenchLoaderArgs) -> Result<()> {
     Ok(())
 }
 
-/// What a training benchmark times: model, frame size, batch, loss weights and number formats.
+/// What a training benchmark times: model, frame size, batch and the training's settings (loss weights, number
+/// formats, device).
 struct BenchConfig {
     name: String,
     model: ModelConfig,
     image: ImageSize,
     batch: usize,
-    loss: LossWeights,
-    precision: Precision,
-    memory_format: MemoryFormat,
-    /// Training steps whose hours the table projects: the paper's, or the cell's `train.steps`.
-    projected_steps: usize,
+    train: TrainConfig,
+    /// Training steps whose hours the table projects, and whose they are: the paper's, or the experiment's.
+    projected: (usize, &'static str),
+}
+
+/// How many steps a benchmark runs untimed, then timed.
+#[derive(Clone, Copy)]
+struct Timing {
+    warmup: usize,
+    steps: usize,
 }
 
 /// The configuration `--config` names.
@@ -288,20 +302,16 @@ fn bench_config(size: BenchSize) -> BenchConfig {
             model: ModelConfig::default(),
             image: ImageSize { height: 240, width: 320 },
             batch: 30,
-            loss: LossWeights::default(),
-            precision: Precision::Fp32,
-            memory_format: MemoryFormat::Contiguous,
-            projected_steps: PAPER_STEPS,
+            train: TrainConfig::default(),
+            projected: (PAPER_STEPS, "the paper's"),
         },
         BenchSize::Small => BenchConfig {
             name: "small".into(),
             model: ModelConfig { backbone_width: 16, attention_inner: 32, embed_hidden: 64, ..ModelConfig::default() },
             image: ImageSize { height: 64, width: 80 },
             batch: 8,
-            loss: LossWeights::default(),
-            precision: Precision::Fp32,
-            memory_format: MemoryFormat::Contiguous,
-            projected_steps: PAPER_STEPS,
+            train: TrainConfig::default(),
+            projected: (PAPER_STEPS, "the paper's"),
         },
     }
 }
@@ -324,7 +334,7 @@ fn synthetic_batch(c: &BenchConfig, device: Device) -> DeviceBatch {
         points: Tensor::rand([b, 2], opts) * 2.0 - 1.0,
         poses: Tensor::rand([b, 6], opts),
         pose_weights: Tensor::ones([b, ta], opts),
-        tasks: Tensor::randint(16, [b], (Kind::Int64, device)),
+        tasks: Tensor::randint(NUM_TASKS as i64, [b], (Kind::Int64, device)),
         states: Tensor::rand([b, ta, STATE_DIM as i64], opts),
     }
 }
@@ -335,16 +345,19 @@ fn sync(device: Device) {
     }
 }
 
-/// Seconds per call of `step` over `steps` calls, after one warm-up call, the device synchronised around them.
-fn seconds_per_step(steps: usize, device: Device, mut step: impl FnMut()) -> f64 {
-    step();
-    sync(device);
-    let start = Instant::now();
-    for _ in 0..steps {
+/// Seconds per call of `step` over `timing.steps` calls, after `timing.warmup` untimed calls, the device
+/// synchronised around them.
+fn seconds_per_step(timing: Timing, device: Device, mut step: impl FnMut()) -> f64 {
+    for _ in 0..timing.warmup {
         step();
     }
     sync(device);
-    start.elapsed().as_secs_f64() / steps as f64
+    let start = Instant::now();
+    for _ in 0..timing.steps {
+        step();
+    }
+    sync(device);
+    start.elapsed().as_secs_f64() / timing.steps as f64
 }
 
 /// Resets the peak resident memory that [`peak_rss_kb`] reads (Linux `clear_refs`); false where it cannot.
@@ -354,9 +367,9 @@ fn reset_peak_rss() -> bool {
 
 /// Times `steps` full training steps of each architecture, then the ResNet-18 trunk's forward + backward on the
 /// same frames.
-fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[String]) -> Result<()> {
-    let (precision, memory_format) = (c.precision, c.memory_format);
-    let device = parse_device(device)?;
+fn bench_train(c: &BenchConfig, timing: Timing, architectures: &[String]) -> Result<()> {
+    let (precision, memory_format) = (c.train.precision, c.train.memory_format);
+    let device = parse_device(&c.train.device)?;
     autotune_convolutions(device);
     tch::manual_seed(0);
     let batch = synthetic_batch(c, device);
@@ -375,21 +388,25 @@ fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[Str
         memory_format
     );
     println!(
-        "  {:<18} {:>12} {:>10} {:>9} {:>10} {:>12} {:>10}",
+        "  {:<18} {:>12} {:>10} {:>9} {:>10} {:>12} {:>12}",
         "architecture",
         "parameters",
         "s/step",
         "steps/s",
         "samples/s",
         "peak memory",
-        format!("{} steps", c.projected_steps)
+        format!("{} steps", c.projected.0)
     );
-    let weights = &c.loss;
+    let weights = &c.train.loss;
     let mut parts = Vec::new();
     for name in architectures {
         let model = ModelConfig { architecture: Architecture::named(name), ..c.model.clone() };
-        let train = TrainConfig { precision, ..TrainConfig::default() };
-        if let Err(e) = check_precision(&model, &train) {
+        // What a training would refuse for this architecture (its heads, its number type) is skipped, not timed.
+        let fits = model
+            .validate()
+            .and_then(|()| check_heads(&model, &c.train))
+            .and_then(|()| check_precision(&model, &c.train));
+        if let Err(e) = fits {
             println!("  {name:<18} skipped: {e}");
             continue;
         }
@@ -402,10 +419,10 @@ fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[Str
             let _precision = precision.scope(device);
             weights.total(&policy.losses(&batch, true))
         };
-        let s = seconds_per_step(steps, device, || opt.backward_step(&forward()));
+        let s = seconds_per_step(timing, device, || opt.backward_step(&forward()));
         // The same step in parts: what a fused optimiser step or a captured graph could at most save.
-        let forward_s = seconds_per_step(steps, device, || drop(forward()));
-        let backward_s = seconds_per_step(steps, device, || forward().backward()) - forward_s;
+        let forward_s = seconds_per_step(timing, device, || drop(forward()));
+        let backward_s = seconds_per_step(timing, device, || forward().backward()) - forward_s;
         parts.push((name.clone(), forward_s, backward_s, s - forward_s - backward_s));
         let memory = match (device, peak_rss_kb()) {
             (Device::Cpu, Some(kb)) if fresh_peak => format!("{:.2} GiB", kb as f64 / (1024.0 * 1024.0)),
@@ -418,10 +435,10 @@ fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[Str
             _ => "n/a".to_string(),
         };
         println!(
-            "  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {:>10.1} {memory:>12} {:>10.2}",
+            "  {name:<18} {parameters:>12} {s:>10.3} {:>9.2} {:>10.1} {memory:>12} {:>12.2}",
             1.0 / s,
             c.batch as f64 / s,
-            c.projected_steps as f64 * s / 3600.0
+            c.projected.0 as f64 * s / 3600.0
         );
     }
 
@@ -441,7 +458,10 @@ fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[Str
     trunk.set_channels_last(memory_format == MemoryFormat::ChannelsLast);
     let images = Tensor::cat(&[&batch.context, &batch.agent], 1).flatten(0, 1);
     let trunk_step = || {
-        let loss = trunk.forward_t(&images, true).mean(Kind::Float);
+        let loss = {
+            let _precision = precision.scope(device);
+            trunk.forward_t(&images, true).mean(Kind::Float)
+        };
         loss.backward();
         for v in trunk_vs.trainable_variables() {
             let mut g = v.grad();
@@ -450,13 +470,13 @@ fn bench_train(c: &BenchConfig, steps: usize, device: &str, architectures: &[Str
             }
         }
     };
-    let trunk_s = seconds_per_step(steps, device, trunk_step);
+    let trunk_s = seconds_per_step(timing, device, trunk_step);
     println!("  {:<18} {:>12} {trunk_s:>10.3} {:>9.2}", "ResNet-18 trunk", "", 1.0 / trunk_s);
     if device.is_cuda() {
         println!("  peak memory: GPU memory this process holds (nvidia-smi), the most any step so far needed");
     }
-    let whose = if c.projected_steps == PAPER_STEPS { "the paper's" } else { "the cell's" };
-    println!("  {0} steps: hours for {whose} {0} training steps at this rate", c.projected_steps);
+    let (projected, whose) = c.projected;
+    println!("  {projected} steps: hours for {whose} {projected} training steps at this rate");
     Ok(())
 }
 

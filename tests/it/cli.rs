@@ -1,5 +1,7 @@
 //! The command line's handling of bad input: one clear error line and a non-zero exit.
-use crate::helpers::{oneshot, scratch};
+use crate::helpers::{oneshot, scratch, torch_rng};
+use oneshot_lab::config::{Experiment, Resolution};
+use oneshot_lab::train::build_policy;
 use std::path::Path;
 
 /// 32x40 frames of collision geometry: collected about four times faster than with the visual meshes on Mesa.
@@ -208,10 +210,23 @@ fn the_training_benchmark_times_an_experiment_cell_as_its_file_configures_it() {
     assert!(header.ends_with("Bf16, ChannelsLast"), "{header}");
     assert!(text.contains("16000 steps: hours for the cell's 16000 training steps"), "{text}");
     let row = text.lines().find(|l| l.trim_start().starts_with("transformer ")).expect("a transformer row");
-    let steps_per_second: f64 = row.split_whitespace().nth(3).unwrap().parse().unwrap();
-    assert!(steps_per_second > 0.0, "{row}");
-    let fp32 = bench(&["--precision", "fp32"]);
-    assert!(fp32.lines().next().unwrap().ends_with("Fp32, ChannelsLast"), "{fp32}");
+    let column = |i: usize| row.split_whitespace().nth(i).unwrap().to_string();
+    assert!(column(3).parse::<f64>().unwrap() > 0.0, "{row}");
+    // The cell's network (its state, pose head and object attention), not the `small` configuration's.
+    let experiment = Experiment::load(&file, &Resolution::default()).unwrap();
+    let model = &experiment.cells.iter().find(|c| c.name == cell).unwrap().config.model;
+    let (vs, _) = {
+        let _rng = torch_rng();
+        build_policy(model, tch::Device::Cpu).unwrap()
+    };
+    let parameters: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
+    assert_eq!(column(1), parameters.to_string(), "{row}");
+    let fp32 = bench(&["--precision", "fp32", "--memory-format", "contiguous"]);
+    assert!(fp32.lines().next().unwrap().ends_with("Fp32, Contiguous"), "{fp32}");
+    // An architecture the cell's settings do not fit (no paper heads for its pose head) is skipped, not fatal.
+    let both = bench(&["--architectures", "transformer,contextual_lstm"]);
+    assert!(both.lines().any(|l| l.trim_start().starts_with("contextual_lstm") && l.contains("skipped")), "{both}");
+    assert!(both.lines().any(|l| l.trim_start().starts_with("transformer ")), "{both}");
 }
 
 #[test]
@@ -222,10 +237,17 @@ fn a_training_benchmark_of_an_unknown_cell_or_a_stray_override_is_an_error_namin
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("learn_cpu16_motion_96.toml") && err.contains("no cell `n1600-nope-s0`"), "{err}");
-    let out = oneshot().args(["bench", "train", "--set", "train.batch_size=4", "--device", "cpu"]).output().unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("--experiment"), "{err}");
+    let strays: [&[&str]; 3] = [
+        &["--set", "train.batch_size=4"],
+        &["--cell", "n1600-state_16k_motion-s1"],
+        &["--config", "paper", "--experiment", file.to_str().unwrap()],
+    ];
+    for stray in strays {
+        let out = oneshot().args(["bench", "train", "--device", "cpu"]).args(stray).output().unwrap();
+        assert!(!out.status.success(), "{stray:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("--experiment"), "{stray:?}: {err}");
+    }
 }
 
 #[test]
