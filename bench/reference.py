@@ -3,7 +3,7 @@
 The same network as the tool's transformer policy (ResNet-18 trunk, sinusoidal positions, two causal non-local
 attention layers, a non-causal task attention layer and unpadded temporal convolution, spatial softmax, one shared
 embedding MLP, the logistic-mixture action and inverse heads and the 2-D point head), the same losses and
-weights, the same batch of random frames, timed the same way: one warm-up step, then `--steps` steps between
+weights, the same batch of random frames, timed the same way: `--warmup` untimed steps (3, as the tool's), then `--steps` steps between
 device synchronisations. Used only to compare step times on one GPU; nothing in the tool runs Python.
 
     python3 bench/reference.py --device cuda --precision bf16 --memory-format channels_last
@@ -186,6 +186,7 @@ def main():
     ap.add_argument("--memory-format", choices=["contiguous", "channels_last"], default="contiguous")
     ap.add_argument("--cudnn-benchmark", action="store_true", help="let cuDNN pick convolution algorithms by timing")
     ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--warmup", type=int, default=3, help="untimed steps first, as `bench train --warmup`")
     ap.add_argument("--batch", type=int, default=30)
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--width", type=int, default=320)
@@ -218,7 +219,8 @@ def main():
         if device.type == "cuda":
             torch.cuda.synchronize(device)
 
-    step()
+    for _ in range(a.warmup):
+        step()
     sync()
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
